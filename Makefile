@@ -1,0 +1,25 @@
+# sgdr: the commands a user types. `make setup` then `make test` is all CI runs.
+PYTHON ?= python3
+BENCH ?=
+PRESET ?= small
+
+.PHONY: setup test test-all bench data demo reproduce clean help
+
+help:
+	@echo "make setup      install libLLVM + sgdr with pinned dependencies (idempotent)"
+	@echo "make test       run the test suite on the tiny preset"
+	@echo "make bench      run benchmarks, one JSON line each (BENCH=sim|render|... for one)"
+	@echo "make data       generate the 7-object benchmark at the small preset into data/"
+	@echo "make demo       generate + reconstruct + predict + evaluate the torus (small preset)"
+
+setup:
+	bash scripts/setup.sh
+
+test:
+	$(PYTHON) -m pytest -q tests
+
+bench:
+	$(PYTHON) -m evaluation.bench $(BENCH)
+
+clean:
+	rm -rf outputs multirun .pytest_cache

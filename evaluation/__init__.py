@@ -1,0 +1,1 @@
+"""Benchmarks, tables and reports (run from the repo root: `python -m evaluation.bench`)."""

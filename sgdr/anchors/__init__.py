@@ -1,0 +1,1 @@
+"""Anchors: volume sampling from Gaussian centres, kNN springs, IDW binding (Eq. 14)."""

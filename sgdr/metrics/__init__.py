@@ -1,0 +1,1 @@
+"""Evaluation metrics: Chamfer distance, EMD, PSNR, SSIM (as DESIGN.md defines them)."""

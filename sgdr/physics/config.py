@@ -1,0 +1,25 @@
+"""Typed config schema of the spring-mass simulator (Hydra group key `physics`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class PhysicsConfig:
+    spring_law: str = "official"  # "official": (1+|strain|)^p_k factor; "paper": |Δl|^p_k (Eq. 8)
+    springs: str = "directed"  # "directed" (official, force on i uses k_i) | "symmetric" (Newton 3)
+    soft_vector_normalised: bool = True  # official: exponent (j - n_c) / (n_k - n_c) in Eq. 15
+    contact: str = "project"  # "project" (official, per-substep μ) | "coulomb" (restitution e, μ)
+    n_substeps: int = 100  # n_t, semi-implicit Euler substeps per frame
+    max_substeps: int = 400  # upper limit when retrying an unstable rollout with more substeps
+    retry_on_nan: bool = True  # the official remedy: rerun with more substeps after NaN
+    grad_mode: str = "truncated"  # "full" (through all frames) | "truncated" (per frame, detached)
+    m0: float = 1.0  # anchor mass m_i = m0
+    zeta0: float = 0.1  # ζ0, damping coefficient (ζ_ij = ζ0 / l_ij, Eq. 17)
+    p_k: float = 0.5  # exponent of the nonlinear spring factor (Eq. 8)
+    n_c: int = 16  # springs with full weight η_j = 1 in the soft vector (Eq. 15)
+    log10_k_init: float = 3.0  # initial log10 k_i for every anchor
+    kappa_init: float = 0.0  # initial soft-vector κ
+    friction_init: float = 0.9  # μ: "project": tangential factor per substep; "coulomb": coefficient
+    restitution_init: float = 0.0  # e in [0, 1] ("coulomb" contact only)

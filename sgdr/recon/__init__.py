@@ -1,0 +1,1 @@
+"""The reconstruction pipeline: static fit -> anchors -> refine -> v0 -> dynamics -> predict."""

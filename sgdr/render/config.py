@@ -1,0 +1,15 @@
+"""Typed config schema of the Gaussian splat renderer (group key `render`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class RenderConfig:
+    tile_size: int = 16  # pixels per tile side for binning
+    dilation: float = 0.3  # screen-space covariance dilation, pixels² (3DGS low-pass)
+    near: float = 0.01  # near plane, scene units; Gaussians in front of it are culled
+    alpha_min: float = 1.0 / 255.0  # contributions below this alpha are skipped
+    transmittance_min: float = 1e-4  # early termination of front-to-back compositing
+    background: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])  # RGB

@@ -1,0 +1,1 @@
+"""The benchmark generator: MLS-MPM simulation, procedural objects, Mitsuba ground truth."""

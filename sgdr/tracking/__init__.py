@@ -1,0 +1,1 @@
+"""Experiment tracking: MLflow (SQLite store by default) plus config and metrics.json."""

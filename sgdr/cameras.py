@@ -101,7 +101,7 @@ class Camera:
         if np.linalg.norm(z) < 1e-12:
             raise CameraError(f"camera {name!r}: eye and target coincide")
         z /= np.linalg.norm(z)
-        x = np.cross(z, -up)  # image x to the right when y points down
+        x = np.cross(z, up)  # image x to the right; y = z × x then points down
         if np.linalg.norm(x) < 1e-9:
             raise CameraError(f"camera {name!r}: up is parallel to the viewing direction")
         x /= np.linalg.norm(x)

@@ -6,6 +6,23 @@ from dataclasses import dataclass, field
 
 
 @dataclass
+class SimulateConfig:
+    """Edited conditions for `experiments/simulate.py` (the paper's Figs. 6-7)."""
+
+    asset: str = ""  # asset folder ("" = <recon.output_dir>/<run name>/asset)
+    out_dir: str = ""  # where videos go ("" = <asset>/../simulate/<tag>)
+    tag: str = "edited"  # name of this simulation's output folder
+    n_frames: int = 0  # frames to simulate (0 = the sequence's)
+    n_substeps: int = 0  # n_t (0 = the value reached in training)
+    ground_height: float = 0.0  # ground plane moved along its normal, scene units
+    friction: float = -1.0  # ground friction (< 0 = the identified value)
+    gravity: list[float] = field(default_factory=list)  # [3] m/s² (empty = the identified/sequence's)
+    stiffness_scale: float = 1.0  # every k_i multiplied by this
+    v0: list[float] = field(default_factory=list)  # [3] initial velocity (empty = identified)
+    cameras: str = "sequence"  # "sequence" (all views tiled) | "orbit" (one turning camera)
+
+
+@dataclass
 class ReconConfig:
     iterations: int = 200  # dynamic-reconstruction passes over the fit frames
     lambda_dssim: float = 0.05  # λ of the dynamic loss
@@ -39,3 +56,4 @@ class ReconConfig:
     render_videos: bool = True  # write side-by-side videos (ground truth | prediction)
     write_plys: bool = True  # write per-frame PLYs of Gaussian centres and anchors
     eval_emd: bool = True  # compute the EMD (exact assignment, the slowest metric)
+    simulate: SimulateConfig = field(default_factory=SimulateConfig)  # experiments/simulate.py

@@ -1,5 +1,6 @@
 # sgdr: the commands a user types. `make setup` then `make test` is all CI runs.
-PYTHON ?= python3
+# The virtual environment made by `make setup`; falls back to python3 when there is none.
+PYTHON ?= $(shell [ -x .venv/bin/python ] && echo .venv/bin/python || echo python3)
 BENCH ?=
 PRESET ?= small
 
@@ -23,3 +24,6 @@ bench:
 
 clean:
 	rm -rf outputs multirun .pytest_cache
+
+distclean: clean
+	rm -rf .venv

@@ -22,6 +22,9 @@ test:
 bench:
 	$(PYTHON) -m evaluation.bench $(BENCH)
 
+demo:
+	$(PYTHON) experiments/reconstruct.py preset=small synth.object=torus
+
 clean:
 	rm -rf outputs multirun .pytest_cache
 

@@ -50,11 +50,19 @@ def array3_to_points(a) -> np.ndarray:
     return np.asarray(dr.detach(a).numpy(), dtype=np.float64).T.reshape(-1, 3)
 
 
+def render(gaussians, camera, render_cfg):
+    """`sgdr.render`'s splatting renderer (CONTRACTS.md): RenderOutput(rgb [H, W, 3], alpha)."""
+    import sgdr.render
+
+    fn = getattr(sgdr.render, "render", None)
+    if fn is None:  # the package does not re-export it: take it from its module
+        from sgdr.render.splat import render as fn
+    return fn(gaussians, camera, render_cfg)
+
+
 def render_rgb_numpy(gaussians, camera, render_cfg) -> np.ndarray:
     """Forward-only render -> np [H, W, 3] float32 in [0, 1]."""
     import drjit as dr
-
-    from sgdr.render import render
 
     with dr.suspend_grad():
         out = render(gaussians, camera, render_cfg)

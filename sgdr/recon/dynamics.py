@@ -100,7 +100,7 @@ def rollout_loss(model, params, binding, gaussians, v0, ground, targets, cameras
     targets: [n_fit] lists of TensorXf [H, W, 3] per view; v0 [3]; dt seconds per frame.
     """
     from sgdr.physics import SimState, rollout
-    from sgdr.render import render
+    from sgdr.recon.common import render
     from sgdr.render.losses import image_loss
 
     with dr.suspend_grad():
@@ -117,7 +117,7 @@ def rollout_loss(model, params, binding, gaussians, v0, ground, targets, cameras
 
 def _frame_loss(gaussians, binding, x, targets_f, cameras, views, render_cfg, lam):
     """Mean image loss of the bound Gaussians at anchor positions x (Array3f [N_A]) over `views`."""
-    from sgdr.render import render
+    from sgdr.recon.common import render
     from sgdr.render.losses import image_loss
 
     g = posed(gaussians, binding.apply(x))

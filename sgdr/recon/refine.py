@@ -35,7 +35,7 @@ def refine_appearance(gaussians, means, targets: list, cameras: list, cfg: Recon
     One random view per step (seeded); `cfg.refine_iterations` steps; learning rates
     `cfg.lr_scale`, `cfg.lr_color`, `cfg.lr_opacity`; loss weight `cfg.refine_lambda_dssim`.
     """
-    from sgdr.render import render
+    from sgdr.recon.common import render
     from sgdr.render.losses import image_loss
 
     means = dr.detach(means)

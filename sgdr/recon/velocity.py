@@ -54,7 +54,7 @@ def fit_initial_velocity(
     gaussians: refined Gaussians at rest (frame 0). targets_by_frame: {f: [TensorXf [H, W, 3]
     per view]} for the pre-contact frames f >= 1. gravity [3] scene units / s².
     """
-    from sgdr.render import render
+    from sgdr.recon.common import render
     from sgdr.render.losses import image_loss
 
     frames = sorted(f for f in targets_by_frame if f >= 1)

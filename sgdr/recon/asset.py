@@ -62,7 +62,7 @@ class Asset:
 
 
 def save_asset(out, gaussians, anchors, values: dict, physics_cfg, anchor_cfg, seq, n_substeps: int, rest_centres) -> Path:
-    from sgdr.gaussians import save_ply
+    from sgdr.gaussians.ply import save_ply
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -87,7 +87,7 @@ def save_asset(out, gaussians, anchors, values: dict, physics_cfg, anchor_cfg, s
 def load_asset(path) -> Asset:
     """Read an asset folder; raises naming the file and field on anything missing."""
     from sgdr.anchors.config import AnchorConfig
-    from sgdr.gaussians import load_ply
+    from sgdr.gaussians.ply import load_ply
     from sgdr.physics.config import PhysicsConfig
 
     root = Path(path)

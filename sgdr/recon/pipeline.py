@@ -69,18 +69,21 @@ def ensure_sequence(cfg, generate_if_missing: bool = True) -> Path:
     if not (path / "sequence.json").exists():
         if cfg.sequence or not generate_if_missing:
             raise FileNotFoundError(f"no sequence at {path} (sequence.json missing); run `make data` or set sequence=")
-        from sgdr.synth import generate_sequence
+        from sgdr.synth.generate import generate_sequence
 
         log.info("generating %s at preset %s into %s", cfg.synth.object, cfg.preset, path)
-        return Path(generate_sequence(cfg.synth, path, seed=cfg.seed))
+        return Path(generate_sequence(cfg.synth, path, seed=cfg.seed, progress=True))
     if not cfg.sequence:
-        seq = load_sequence(path)
-        cam = seq.cameras[0]
-        if (cam.width, len(seq.cameras)) != (cfg.synth.resolution, cfg.synth.n_views):
+        from sgdr.synth.generate import is_complete
+
+        if not is_complete(path, cfg.synth):
+            seq = load_sequence(path)
+            cam = seq.cameras[0]
             raise ValueError(
-                f"{path} holds {len(seq.cameras)} views at {cam.width}px, but preset {cfg.preset!r} asks for "
-                f"{cfg.synth.n_views} views at {cfg.synth.resolution}px (synth.n_views, synth.resolution): it was "
-                f"generated at another preset. Delete it to regenerate, or pass sequence={path} to use it."
+                f"{path} ({len(seq.cameras)} views at {cam.width}px, {seq.n_frames} frames) does not match preset "
+                f"{cfg.preset!r} (synth.n_views={cfg.synth.n_views}, synth.resolution={cfg.synth.resolution}, "
+                f"synth.n_frames={cfg.synth.n_frames}, synth.object={cfg.synth.object}): it was generated with other "
+                f"settings. Delete it to regenerate, or pass sequence={path} to use it as it is."
             )
     return path
 
@@ -142,7 +145,8 @@ def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> Run
 
 def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool) -> RunOutputs:
     from sgdr.anchors import IDWBinding, sample_anchors
-    from sgdr.gaussians import fit_static, load_ply, save_ply
+    from sgdr.gaussians.ply import load_ply, save_ply
+    from sgdr.gaussians.static_fit import fit_static
     from sgdr.physics import Ground, build_spring_model
 
     runner = StageRunner(run_dir, force=cfg.recon.force)

@@ -32,7 +32,7 @@ class ReconConfig:
     lr_kappa: float = 1e-2  # Adam, soft vector κ
     lr_friction: float = 1e-2  # Adam, ground friction
     lr_restitution: float = 1e-2  # Adam, restitution (coulomb contact)
-    lr_v0: float = 1e-2  # Adam, initial velocity
+    lr_v0: float = 5e-2  # Adam, initial velocity (scene units / s per step, roughly)
     v0_iterations: int = 100  # Adam steps of the initial-velocity stage
     refine_iterations: int = 300  # Adam steps refining scale, colour, opacity at IDW positions
     force: bool = False  # redo stages whose outputs exist

@@ -64,3 +64,45 @@ def test_rerun_skips_and_corruption_is_redone(tiny_run):
     assert {"static", "anchors", "refine", "velocity"} <= skipped
     assert "dynamics" not in skipped
     assert redo.metrics["future_cd"] == pytest.approx(out.metrics["future_cd"], rel=1e-3)
+
+
+def test_simulate_new_conditions(tiny_run):
+    from sgdr.recon.asset import load_asset, simulate_asset
+    from sgdr.recon.config import SimulateConfig
+
+    cfg, out = tiny_run
+    asset = load_asset(out.run_dir / "asset")
+    # no gravity, no throw: the springs are at rest, so nothing moves
+    still, cams = simulate_asset(asset, SimulateConfig(gravity=[0, 0, 0], v0=[0, 0, 0], n_frames=4, cameras="orbit"), cfg.render)
+    assert len(cams) == 4 and still.images.shape[:2] == (4, 1)
+    assert np.abs(still.centres - still.centres[0]).max() < 1e-4
+    # the same drop onto a ground 0.05 lower ends 0.05 lower, resting on its ground
+    n = asset.ground_normal / np.linalg.norm(asset.ground_normal)
+    ends = {}
+    for dh in (0.0, -0.05):
+        pred, _ = simulate_asset(asset, SimulateConfig(ground_height=dh, n_frames=asset.n_frames), cfg.render)
+        heights = (pred.anchors - (asset.ground_point + dh * n)) @ n  # [T, N_A]
+        assert heights.min() > -1e-3
+        ends[dh] = float(heights[-1].mean() + dh)
+    assert ends[0.0] - ends[-0.05] == pytest.approx(0.05, abs=0.015)
+
+
+def test_drivers_run_on_the_tiny_preset(tiny_run):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    cfg, out = tiny_run
+    root = Path(__file__).resolve().parent.parent
+    common = [f"data_dir={cfg.data_dir}", f"recon.output_dir={cfg.recon.output_dir}", f"tracking.uri={cfg.tracking.uri}"]
+    rec = subprocess.run([sys.executable, "experiments/reconstruct.py", "preset=tiny", *common], cwd=root, capture_output=True, text=True)
+    assert rec.returncode == 0, rec.stderr[-2000:]
+    last = json.loads(rec.stdout.strip().splitlines()[-1])
+    assert last["demo"] == "torus" and last["future_cd"] == pytest.approx(out.metrics["future_cd"], rel=1e-3)
+    sim = subprocess.run(
+        [sys.executable, "experiments/simulate.py", "preset=tiny", *common, "recon.simulate.stiffness_scale=0.5", "recon.simulate.n_frames=3"],
+        cwd=root, capture_output=True, text=True,
+    )
+    assert sim.returncode == 0, sim.stderr[-2000:]
+    target = Path(json.loads(sim.stdout.strip().splitlines()[-1])["simulate"])
+    assert (target / "video.mp4").stat().st_size > 0 and (target / "trajectory.npz").exists()

@@ -19,25 +19,22 @@ from sgdr.recon.pipeline import STAGES, run_pipeline
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     root = tmp_path_factory.mktemp("e2e")
-    cfg = OmegaConf.to_object(
-        compose(
-            [
-                "preset=tiny",
-                f"data_dir={root / 'data'}",
-                f"recon.output_dir={root / 'outputs'}",
-                f"tracking.uri=sqlite:///{root / 'mlflow.db'}",
-                # start the stiffness a decade too soft (the tiny torus's best log10 k is ~3):
-                # the dynamic stage has to find it, so "the loss decreases" means something
-                "physics.log10_k_init=2.0",
-                "recon.lr_log10_k=0.05",
-            ]
-        )
-    )
-    return cfg, run_pipeline(cfg, progress=False)
+    overrides = [
+        "preset=tiny",
+        f"data_dir={root / 'data'}",
+        f"recon.output_dir={root / 'outputs'}",
+        f"tracking.uri=sqlite:///{root / 'mlflow.db'}",
+        # start the stiffness a decade too soft (the tiny torus's best log10 k is ~3): the
+        # dynamic stage has to find it, so "the loss decreases" means something
+        "physics.log10_k_init=2.0",
+        "recon.lr_log10_k=0.05",
+    ]
+    cfg = OmegaConf.to_object(compose(overrides))
+    return overrides, cfg, run_pipeline(cfg, progress=False)
 
 
 def test_dynamic_loss_decreases_and_beats_the_baseline(tiny_run):
-    _, out = tiny_run
+    _, _, out = tiny_run
     m = out.metrics
     assert m["dynamic_eval_loss_final"] < m["dynamic_eval_loss_initial"]
     assert m["future_cd"] < m["baseline_future_cd"], (m["future_cd"], m["baseline_future_cd_by_variant"])
@@ -46,7 +43,7 @@ def test_dynamic_loss_decreases_and_beats_the_baseline(tiny_run):
 
 
 def test_run_folder_holds_the_record(tiny_run):
-    _, out = tiny_run
+    _, _, out = tiny_run
     d = out.run_dir
     metrics = json.loads((d / "metrics.json").read_text())
     assert metrics["future_cd"] == out.metrics["future_cd"]
@@ -57,7 +54,7 @@ def test_run_folder_holds_the_record(tiny_run):
 
 
 def test_rerun_skips_and_corruption_is_redone(tiny_run):
-    cfg, out = tiny_run
+    overrides, cfg, out = tiny_run
     again = run_pipeline(cfg, progress=False)
     assert set(again.metrics["stages_skipped"]) == set(STAGES)
     assert again.metrics["future_cd"] == out.metrics["future_cd"]
@@ -74,7 +71,7 @@ def test_simulate_new_conditions(tiny_run):
     from sgdr.recon.asset import load_asset, simulate_asset
     from sgdr.recon.config import SimulateConfig
 
-    cfg, out = tiny_run
+    overrides, cfg, out = tiny_run
     asset = load_asset(out.run_dir / "asset")
     # no gravity, no throw: the springs are at rest, so nothing moves
     still, cams = simulate_asset(asset, SimulateConfig(gravity=[0, 0, 0], v0=[0, 0, 0], n_frames=4, cameras="orbit"), cfg.render)
@@ -96,15 +93,15 @@ def test_drivers_run_on_the_tiny_preset(tiny_run):
     import sys
     from pathlib import Path
 
-    cfg, out = tiny_run
+    overrides, cfg, out = tiny_run
     root = Path(__file__).resolve().parent.parent
-    common = [f"data_dir={cfg.data_dir}", f"recon.output_dir={cfg.recon.output_dir}", f"tracking.uri={cfg.tracking.uri}"]
-    rec = subprocess.run([sys.executable, "experiments/reconstruct.py", "preset=tiny", *common], cwd=root, capture_output=True, text=True)
+    common = overrides
+    rec = subprocess.run([sys.executable, "experiments/reconstruct.py", *common], cwd=root, capture_output=True, text=True)
     assert rec.returncode == 0, rec.stderr[-2000:]
     last = json.loads(rec.stdout.strip().splitlines()[-1])
     assert last["demo"] == "torus" and last["future_cd"] == pytest.approx(out.metrics["future_cd"], rel=1e-3)
     sim = subprocess.run(
-        [sys.executable, "experiments/simulate.py", "preset=tiny", *common, "recon.simulate.stiffness_scale=0.5", "recon.simulate.n_frames=3"],
+        [sys.executable, "experiments/simulate.py", *common, "recon.simulate.stiffness_scale=0.5", "recon.simulate.n_frames=3"],
         cwd=root, capture_output=True, text=True,
     )
     assert sim.returncode == 0, sim.stderr[-2000:]

@@ -43,7 +43,6 @@ from dataclasses import dataclass, field, replace
 import drjit as dr
 import numpy as np
 
-from sgdr.backend import ad
 from sgdr.recon.common import posed, scalar
 from sgdr.recon.config import ReconConfig
 from sgdr.recon.optim import adam_from_numpy, adam_to_numpy, make_adam

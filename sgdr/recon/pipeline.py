@@ -202,7 +202,7 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
     refine_keys = ("refine_iterations", "lr_scale", "lr_color", "lr_opacity", "refine_lambda_dssim")
     stages["refine"] = runner.run(
         "refine",
-        {"recon": {k: getattr(cfg.recon, k) for k in refine_keys}, "physics": cfg.physics, "anchors": cfg.anchors,
+        {"recon": {k: getattr(cfg.recon, k) for k in refine_keys}, "anchors": cfg.anchors,
          "render": cfg.render, "seed": cfg.seed, "input": [stages["static"].digest, stages["anchors"].digest]},
         refine_produce,
         lambda out: (load_ply(out / "gaussians.ply"), json.loads((out / "losses.json").read_text())),

@@ -37,6 +37,7 @@ def test_dynamic_loss_decreases_and_beats_the_baseline(tiny_run):
     _, _, out = tiny_run
     m = out.metrics
     assert m["dynamic_eval_loss_final"] < m["dynamic_eval_loss_initial"]
+    # issue 6's baseline: the better of "ballistic" and "held still" on the future frames
     assert m["future_cd"] < m["baseline_future_cd"], (m["future_cd"], m["baseline_future_cd_by_variant"])
     for key in ("fit_psnr", "fit_ssim", "fit_cd", "fit_emd", "future_psnr", "future_ssim", "future_emd"):
         assert np.isfinite(m[key]), key

@@ -1,0 +1,447 @@
+"""Differentiable tile-based Gaussian splatting (Eqs. 1-3 of the seed paper), in Dr.Jit.
+
+    render(gaussians, camera, cfg) -> RenderOutput(rgb TensorXf [H, W, 3], alpha TensorXf [H, W])
+
+Three phases, as in 3DGS (Kerbl et al. 2023):
+
+1. **Projection** (`project`, recorded Dr.Jit AD, one thread per Gaussian): camera-space
+   centre p = W μ + t, image centre (u, v) = (fx p_x/p_z + cx, fy p_y/p_z + cy), screen
+   covariance Σ' = J W Σ Wᵀ Jᵀ + δ I (EWA splatting; δ = `cfg.dilation` px² low-pass),
+   its inverse (the *conic*), a 3σ footprint radius, colour c = sigmoid(logits) and opacity
+   σ = sigmoid(logit). Gaussians with p_z <= `cfg.near` are culled.
+2. **Binning** (`bin_gaussians`, no gradients): each visible Gaussian is duplicated into
+   every 16x16 tile its footprint rectangle overlaps. The per-Gaussian tile counts are turned
+   into offsets by a prefix sum, the entries are sorted by tile with `dr.argsort` (stable) of
+   detached keys after the Gaussians were put in depth order, so every tile holds a
+   variable-length, front-to-back list. Nothing is ever dropped by a per-tile cap.
+3. **Compositing** (`_Rasterize`, a `dr.CustomOp`, one thread per pixel): front-to-back
+   alpha blending over the pixel's tile list (Eq. 3),
+       α_i = min(0.99, σ_i exp(-½ dᵀ Σ'⁻¹ d)),   C = Σ_i c_i α_i T_i + T_N · background,
+       T_i = Π_{j<i} (1 - α_j),
+   skipping α_i < `cfg.alpha_min` and stopping before T would fall below
+   `cfg.transmittance_min`. Its adjoint is written by hand and walks each pixel's list back
+   to front, recovering T_i = T_{i+1} / (1 - α_i) and the normalised colour behind i,
+   S_i = c_{i+1} α_{i+1} + (1 - α_{i+1}) S_{i+1}, so that
+       ∂C/∂α_i = T_i (c_i - S_i) - T_N / (1 - α_i) · background,   ∂A/∂α_i = T_N / (1 - α_i)
+   with A = 1 - T_N the accumulated opacity. Per-Gaussian adjoints are scatter-added
+   (Dr.Jit's `Expand` reduction on the CPU: no atomics). The custom op hands its input
+   adjoints (image centre, conic, colour, opacity) back to Dr.Jit's AD graph, which carries them
+   through the projection into every field of `Gaussians`, and on into whatever computed the
+   means upstream (IDW skinning of simulated anchors).
+
+Memory: the forward keeps, per pixel, the final transmittance and the index after the last
+contributing entry (8 bytes/pixel), plus the tile lists; nothing per (pixel, Gaussian).
+
+Pixel centres are at integer + 0.5 (see `sgdr.cameras`). The slow NumPy twin of this file is
+`sgdr.render.twin` (tests only).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import numpy as np
+
+from sgdr.backend import ad
+from sgdr.cameras import Camera
+from sgdr.gaussians.model import Gaussians
+from sgdr.render.config import RenderConfig
+
+
+_SCATTER_MODE = dr.ReduceMode.Auto
+
+
+class RenderError(ValueError):
+    """Invalid renderer input; the message names the offending field."""
+
+
+@dataclass
+class RenderOutput:
+    rgb: object  # TensorXf [H, W, 3] linear RGB in [0, 1], background composited
+    alpha: object  # TensorXf [H, W] accumulated opacity A = 1 - T_N
+
+
+@dataclass
+class Projected:
+    """Per-Gaussian screen-space quantities (phase 1); AD-attached to `Gaussians`."""
+
+    mean2d: object  # Array2f [M] image centre (u, v), pixels
+    conic: object  # Array3f [M] (a, b, c) of Σ'⁻¹ = [[a, b], [b, c]], 1/pixels²
+    color: object  # Array3f [M] RGB in [0, 1]
+    opacity: object  # Float [M] in (0, 1)
+    depth: object  # Float [M] camera-space z, scene units (detached)
+    radius: object  # Float [M] footprint radius, pixels; 0 for culled Gaussians (detached)
+
+
+@dataclass
+class Bins:
+    """Tile lists (phase 2): non-differentiable index arrays, rebuilt every call."""
+
+    tiles_x: int
+    tiles_y: int
+    n_entries: int  # total (Gaussian, tile) pairs
+    entry_gaussian: object  # UInt32 [n_entries] Gaussian index, sorted by (tile, depth)
+    tile_start: object  # UInt32 [tiles] first entry of each tile
+    tile_end: object  # UInt32 [tiles] one past the last entry of each tile
+
+
+# ---------------------------------------------------------------------------- phase 1
+def _quat_to_matrix(q):
+    """Unit quaternion (w, x, y, z) (normalised here) -> 3x3 rotation rows."""
+    n = dr.sqrt(dr.maximum(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w, 1e-24))
+    w, x, y, z = q.x / n, q.y / n, q.z / n, q.w / n
+    return (
+        (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+        (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+        (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
+    )
+
+
+def project(g: Gaussians, camera: Camera, cfg: RenderConfig) -> Projected:
+    """Phase 1: EWA projection of every Gaussian (recorded AD; one thread per Gaussian)."""
+    t = ad()
+    R = [[float(v) for v in row] for row in camera.R]
+    tc = [float(v) for v in camera.t]
+    fx, fy = float(camera.K[0, 0]), float(camera.K[1, 1])
+    cx, cy = float(camera.K[0, 2]), float(camera.K[1, 2])
+    m = g.means
+    # camera-space centre p = W μ + t  (OpenCV axes, z forward)
+    p = [R[r][0] * m.x + R[r][1] * m.y + R[r][2] * m.z + tc[r] for r in range(3)]
+    z = p[2]
+    visible = z > cfg.near
+    zs = dr.select(visible, z, 1.0)  # safe denominator for culled Gaussians
+    inv_z = 1.0 / zs
+    u = fx * p[0] * inv_z + cx
+    v = fy * p[1] * inv_z + cy
+    # Jacobian of the perspective map at p, with the 3DGS guard-band clamp of x/z, y/z
+    lim_x = cfg.guard_band * 0.5 * camera.width / fx
+    lim_y = cfg.guard_band * 0.5 * camera.height / fy
+    tx = dr.clip(p[0] * inv_z, -lim_x, lim_x)
+    ty = dr.clip(p[1] * inv_z, -lim_y, lim_y)
+    J = ((fx * inv_z, 0.0, -fx * tx * inv_z), (0.0, fy * inv_z, -fy * ty * inv_z))
+    # T = J W (2x3), then A = T R_q S (2x3) and Σ' = A Aᵀ
+    T = [[J[r][0] * R[0][c] + J[r][1] * R[1][c] + J[r][2] * R[2][c] for c in range(3)] for r in range(2)]
+    Rq = _quat_to_matrix(g.rotations)
+    s = (dr.exp(g.log_scales.x), dr.exp(g.log_scales.y), dr.exp(g.log_scales.z))
+    A = [[(T[r][0] * Rq[0][c] + T[r][1] * Rq[1][c] + T[r][2] * Rq[2][c]) * s[c] for c in range(3)] for r in range(2)]
+    a = A[0][0] * A[0][0] + A[0][1] * A[0][1] + A[0][2] * A[0][2] + cfg.dilation
+    b = A[0][0] * A[1][0] + A[0][1] * A[1][1] + A[0][2] * A[1][2]
+    c = A[1][0] * A[1][0] + A[1][1] * A[1][1] + A[1][2] * A[1][2] + cfg.dilation
+    det = a * c - b * b
+    visible &= det > 0
+    inv_det = 1.0 / dr.select(visible, det, 1.0)
+    conic = t.Array3f(c * inv_det, -b * inv_det, a * inv_det)
+    # 3σ footprint from the larger eigenvalue of Σ' (detached: binning only)
+    ad_, cd_, dd_ = dr.detach(a), dr.detach(c), dr.detach(det)
+    mid = 0.5 * (ad_ + cd_)
+    lam = mid + dr.sqrt(dr.maximum(0.1, mid * mid - dd_))
+    radius = dr.select(visible, dr.ceil(3.0 * dr.sqrt(lam)), 0.0)
+    color = dr.rcp(1.0 + dr.exp(-g.color_logits))
+    opacity = dr.rcp(1.0 + dr.exp(-g.opacity_logits))
+    return Projected(
+        mean2d=t.Array2f(u, v),
+        conic=conic,
+        color=color,
+        opacity=opacity,
+        depth=dr.detach(z),
+        radius=radius,
+    )
+
+
+# ---------------------------------------------------------------------------- phase 2
+def tile_rects(u, v, radius, width: int, height: int, tile: int):
+    """Tile rectangle [x0, x1) x [y0, y1) covered by each footprint (3DGS `getRect`)."""
+    t = ad()
+    tiles_x, tiles_y = -(-width // tile), -(-height // tile)
+
+    def clamp(x, hi):
+        return t.UInt32(dr.clip(x, 0, hi))
+
+    x0 = clamp(dr.floor((u - radius) / tile), tiles_x)
+    x1 = clamp(dr.floor((u + radius + tile - 1) / tile), tiles_x)
+    y0 = clamp(dr.floor((v - radius) / tile), tiles_y)
+    y1 = clamp(dr.floor((v + radius + tile - 1) / tile), tiles_y)
+    return x0, x1, y0, y1
+
+
+def bin_gaussians(proj: Projected, width: int, height: int, cfg: RenderConfig) -> Bins:
+    """Phase 2: variable-length, depth-ordered tile lists (prefix sum + stable argsort)."""
+    t = ad()
+    ts = int(cfg.tile_size)
+    tiles_x, tiles_y = -(-width // ts), -(-height // ts)
+    n_tiles = tiles_x * tiles_y
+    m = dr.width(proj.radius)
+    # Gaussians in front-to-back order; entries are generated in this order, so a *stable*
+    # sort by tile afterwards leaves every tile list sorted by depth.
+    depth = dr.select(proj.radius > 0, proj.depth, dr.inf)
+    order = dr.argsort(depth)
+    u = dr.gather(t.Float, dr.detach(proj.mean2d.x), order)
+    v = dr.gather(t.Float, dr.detach(proj.mean2d.y), order)
+    r = dr.gather(t.Float, proj.radius, order)
+    x0, x1, y0, y1 = tile_rects(u, v, r, width, height, ts)
+    w_rect = x1 - x0
+    n = dr.select(r > 0, w_rect * (y1 - y0), 0)
+    offsets = dr.cumsum(n)  # inclusive prefix sum, UInt32 [M]
+    dr.eval(offsets, x0, y0, w_rect)
+    total = int(dr.gather(t.UInt32, offsets, m - 1)[0]) if m > 0 else 0
+    if total == 0:
+        zeros = dr.zeros(t.UInt32, n_tiles)
+        return Bins(tiles_x, tiles_y, 0, t.UInt32(), zeros, zeros)
+    e = dr.arange(t.UInt32, total)
+    # k: position in depth order of the Gaussian owning entry e (first offsets[k] > e)
+    k = t.UInt32(dr.binary_search(0, m - 1, lambda i: dr.gather(t.UInt32, offsets, i) <= e))
+    local = e - (dr.gather(t.UInt32, offsets, k) - dr.gather(t.UInt32, n, k))
+    w_k = dr.maximum(dr.gather(t.UInt32, w_rect, k), 1)  # >= 1 also in masked SIMD tail lanes
+    tile_x = dr.gather(t.UInt32, x0, k) + local % w_k
+    tile_y = dr.gather(t.UInt32, y0, k) + local // w_k
+    tile_id = tile_y * tiles_x + tile_x
+    perm = dr.argsort(tile_id)
+    entry_gaussian = dr.gather(t.UInt32, order, dr.gather(t.UInt32, k, perm))
+    counts = dr.zeros(t.UInt32, n_tiles)
+    dr.scatter_add(counts, t.UInt32(1), tile_id)
+    tile_end = dr.cumsum(counts)
+    tile_start = tile_end - counts
+    dr.eval(entry_gaussian, tile_start, tile_end)
+    return Bins(tiles_x, tiles_y, total, entry_gaussian, tile_start, tile_end)
+
+
+# ---------------------------------------------------------------------------- phase 3
+def _pixel_layout(width: int, height: int, tile: int, tiles_x: int, tiles_y: int):
+    """Threads are tile-major (all pixels of tile 0, then tile 1, ...) so a SIMD packet runs
+    one tile's list in lock-step. Returns (tile id, pixel x, y, inside-image mask) per thread and
+    the thread index of every image pixel in row-major order."""
+    t = ad()
+    per_tile = tile * tile
+    i = dr.arange(t.UInt32, tiles_x * tiles_y * per_tile)
+    tile_id = i // per_tile
+    local = i % per_tile
+    px = (tile_id % tiles_x) * tile + local % tile
+    py = (tile_id // tiles_x) * tile + local // tile
+    inside = (px < width) & (py < height)
+    x = dr.arange(t.UInt32, width * height)
+    ix, iy = x % width, x // width
+    image_to_thread = ((iy // tile) * tiles_x + ix // tile) * per_tile + (iy % tile) * tile + ix % tile
+    return tile_id, px, py, inside, image_to_thread
+
+
+def _gaussian_alpha(mean2d, conic, opacity, pxf, pyf, cfg):
+    """α = min(0.99, σ exp(power)), power = -½ dᵀ Σ'⁻¹ d with d = centre - pixel centre."""
+    dx = mean2d.x - pxf
+    dy = mean2d.y - pyf
+    power = -0.5 * (conic.x * dx * dx + conic.z * dy * dy) - conic.y * dx * dy
+    g = dr.exp(power)
+    raw = opacity * g
+    alpha = dr.minimum(cfg.alpha_max, raw)
+    contrib = (power <= 0.0) & (alpha >= cfg.alpha_min)
+    return dx, dy, g, raw, alpha, contrib
+
+
+class _Rasterize(dr.CustomOp):
+    """Phase 3 as a custom differentiable op: front-to-back forward, back-to-front adjoint.
+
+    Inputs (AD): mean2d Array2f [M], conic Array3f [M], color Array3f [M], opacity Float [M].
+    Outputs: rgb Float [H*W*3] (row-major, interleaved), alpha Float [H*W].
+    """
+
+    def eval(self, mean2d, conic, color, opacity, bins: Bins, width, height, cfg, background):
+        t = ad()
+        self.mean2d, self.conic, self.color, self.opacity = mean2d, conic, color, opacity
+        self.bins, self.width, self.height, self.cfg, self.bg = bins, width, height, cfg, background
+        ts = int(cfg.tile_size)
+        tile_id, px, py, inside, image_to_thread = _pixel_layout(width, height, ts, bins.tiles_x, bins.tiles_y)
+        self.layout = (tile_id, px, py, inside, image_to_thread)
+        start = dr.gather(t.UInt32, bins.tile_start, tile_id)
+        end = dr.select(inside, dr.gather(t.UInt32, bins.tile_end, tile_id), start)
+        pxf, pyf = t.Float(px) + 0.5, t.Float(py) + 0.5
+        ids = bins.entry_gaussian
+        t_min = float(cfg.transmittance_min)
+
+        def cond(j, T, C, last, done):
+            return (j < end) & ~done
+
+        def body(j, T, C, last, done):
+            gid = dr.gather(t.UInt32, ids, j)
+            m2 = dr.gather(t.Array2f, mean2d, gid)
+            co = dr.gather(t.Array3f, conic, gid)
+            op = dr.gather(t.Float, opacity, gid)
+            _, _, _, _, alpha, contrib = _gaussian_alpha(m2, co, op, pxf, pyf, cfg)
+            T_next = T * (1.0 - alpha)
+            stop = contrib & (T_next < t_min)
+            contrib &= ~stop
+            col = dr.gather(t.Array3f, color, gid, contrib)
+            C = dr.select(contrib, C + col * (alpha * T), C)
+            T = dr.select(contrib, T_next, T)
+            last = dr.select(contrib, j + 1, last)
+            return j + 1, T, C, last, stop
+
+        j, T, C, last, _ = dr.while_loop(
+            (t.UInt32(start), t.Float(1.0), dr.zeros(t.Array3f, dr.width(start)), t.UInt32(start), t.Bool(False)),
+            cond,
+            body,
+            label="splat_forward",
+        )
+        C = C + T * t.Array3f(*background)
+        self.T_final, self.last = T, last
+        dr.eval(T, last, C)
+        rgb = dr.gather(t.Array3f, C, image_to_thread)
+        alpha = 1.0 - dr.gather(t.Float, T, image_to_thread)
+        return dr.ravel(rgb), alpha
+
+    def backward(self):
+        t = ad()
+        g_rgb_flat, g_alpha_img = self.grad_out()
+        cfg, bins = self.cfg, self.bins
+        tile_id, px, py, inside, image_to_thread = self.layout
+        n_threads = dr.width(tile_id)
+        m = dr.width(self.opacity)
+        # adjoints of the image, back to tile-major thread order
+        g_C = dr.zeros(t.Array3f, n_threads)
+        g_A = dr.zeros(t.Float, n_threads)
+        if dr.width(g_rgb_flat) > 1 or dr.width(g_alpha_img) > 1:
+            g_rgb = dr.unravel(t.Array3f, t.Float(g_rgb_flat)) if dr.width(g_rgb_flat) > 1 else t.Array3f(g_rgb_flat)
+            dr.scatter(g_C, g_rgb, image_to_thread)
+            dr.scatter(g_A, t.Float(g_alpha_img), image_to_thread)
+        else:  # scalar (broadcast) adjoints
+            g_C = t.Array3f(g_rgb_flat) * dr.select(inside, 1.0, 0.0)
+            g_A = t.Float(g_alpha_img) * dr.select(inside, 1.0, 0.0)
+        bg = t.Array3f(*self.bg)
+        # every pixel of a tile starts at the tile's furthest last contributor (lock-step SIMD)
+        tiles = bins.tiles_x * bins.tiles_y
+        tile_last = dr.zeros(t.UInt32, tiles)
+        dr.scatter_reduce(dr.ReduceOp.Max, tile_last, self.last, tile_id)
+        start = dr.gather(t.UInt32, bins.tile_start, tile_id)
+        j0 = dr.select(inside, dr.gather(t.UInt32, tile_last, tile_id), start)
+        pxf, pyf = t.Float(px) + 0.5, t.Float(py) + 0.5
+        last, T_N = self.last, self.T_final
+        ids = bins.entry_gaussian
+        mean2d, conic, color, opacity = self.mean2d, self.conic, self.color, self.opacity
+
+        # per-Gaussian adjoint accumulators (scatter targets)
+        d_u, d_v = dr.zeros(t.Float, m), dr.zeros(t.Float, m)
+        d_ca, d_cb, d_cc = dr.zeros(t.Float, m), dr.zeros(t.Float, m), dr.zeros(t.Float, m)
+        d_r, d_g, d_b = dr.zeros(t.Float, m), dr.zeros(t.Float, m), dr.zeros(t.Float, m)
+        d_o = dr.zeros(t.Float, m)
+        g_bg = dr.dot(g_C, bg)  # δL/δC · background
+
+        def cond(j, T, S):
+            return j > start
+
+        def body(j, T, S):
+            jj = j - 1
+            active = jj < last
+            gid = dr.gather(t.UInt32, ids, jj)
+            m2 = dr.gather(t.Array2f, mean2d, gid)
+            co = dr.gather(t.Array3f, conic, gid)
+            op = dr.gather(t.Float, opacity, gid)
+            dx, dy, gauss, raw, alpha, contrib = _gaussian_alpha(m2, co, op, pxf, pyf, cfg)
+            contrib &= active
+            col = dr.gather(t.Array3f, color, gid, contrib)
+            one_minus = 1.0 - alpha
+            T_i = T / one_minus  # transmittance in front of entry jj
+            # δL/δc_i = α_i T_i δL/δC
+            dcol = g_C * (alpha * T_i)
+            # δL/δα_i (see module docstring)
+            dalpha = (
+                T_i * dr.dot(col - S, g_C)
+                + (T_N / one_minus) * (g_A - g_bg)
+            )
+            dalpha = dr.select(raw < cfg.alpha_max, dalpha, 0.0)  # clamped α has no gradient
+            # α = σ G, G = exp(power)
+            dop = dalpha * gauss
+            dpower = dalpha * alpha
+            du = -dpower * (co.x * dx + co.y * dy)
+            dv = -dpower * (co.z * dy + co.y * dx)
+            dca = -0.5 * dpower * dx * dx
+            dcb = -dpower * dx * dy
+            dcc = -0.5 * dpower * dy * dy
+            for target, value in (
+                (d_u, du), (d_v, dv), (d_ca, dca), (d_cb, dcb), (d_cc, dcc),
+                (d_r, dcol.x), (d_g, dcol.y), (d_b, dcol.z), (d_o, dop),
+            ):
+                dr.scatter_add(target, value, gid, contrib, mode=_SCATTER_MODE)
+            S = dr.select(contrib, col * alpha + one_minus * S, S)
+            T = dr.select(contrib, T_i, T)
+            return jj, T, S
+
+        dr.while_loop(
+            (t.UInt32(j0), t.Float(T_N), dr.zeros(t.Array3f, n_threads)),
+            cond,
+            body,
+            label="splat_backward",
+        )
+        self.set_grad_in("mean2d", t.Array2f(d_u, d_v))
+        self.set_grad_in("conic", t.Array3f(d_ca, d_cb, d_cc))
+        self.set_grad_in("color", t.Array3f(d_r, d_g, d_b))
+        self.set_grad_in("opacity", d_o)
+
+    def forward(self):
+        raise NotImplementedError(
+            "sgdr.render.splat: forward-mode derivatives of the rasteriser are not implemented; use dr.backward"
+        )
+
+    def name(self):
+        return "GaussianRasterize"
+
+
+# ---------------------------------------------------------------------------- entry point
+def _check_finite(g: Gaussians):
+    """Raise RenderError naming the first Gaussians field holding NaN/inf (one reduction)."""
+    t = ad()
+    fields = {
+        "means": g.means,
+        "log_scales": g.log_scales,
+        "rotations": g.rotations,
+        "color_logits": g.color_logits,
+        "opacity_logits": g.opacity_logits,
+    }
+    counts = []
+    for value in fields.values():
+        v = dr.detach(value)
+        comps = [v] if isinstance(v, t.Float) else [v[i] for i in range(len(v))]
+        s = comps[0]
+        for c in comps[1:]:
+            s = s + c
+        counts.append(dr.count(~dr.isfinite(s)))
+    dr.eval(*counts)
+    for (name, _), n in zip(fields.items(), counts):
+        if int(n[0]) > 0:
+            raise RenderError(f"render: Gaussians.{name} has {int(n[0])} non-finite entries (NaN or inf)")
+
+
+def _check_sizes(g: Gaussians) -> int:
+    m = dr.width(g.opacity_logits)
+    for name in ("means", "log_scales", "rotations", "color_logits"):
+        w = dr.width(getattr(g, name))
+        if w != m:
+            raise RenderError(f"render: Gaussians.{name} has {w} entries but opacity_logits has {m}")
+    return m
+
+
+def render(gaussians: Gaussians, camera: Camera, cfg: RenderConfig) -> RenderOutput:
+    """Render one view. Differentiable w.r.t. every field of `gaussians` (reverse mode).
+
+    gaussians: M Gaussians (M may be 0: the image is the background, alpha 0).
+    camera: OpenCV pinhole camera; the image is camera.height x camera.width.
+    Returns rgb TensorXf [H, W, 3] and alpha TensorXf [H, W].
+    """
+    t = ad()
+    if len(cfg.background) != 3:
+        raise RenderError(f"RenderConfig.background must have 3 entries, got {list(cfg.background)}")
+    if cfg.tile_size <= 0:
+        raise RenderError(f"RenderConfig.tile_size must be positive, got {cfg.tile_size}")
+    width, height = camera.width, camera.height
+    bg = [float(x) for x in cfg.background]
+    m = _check_sizes(gaussians)
+    if m > 0 and cfg.check_finite:
+        _check_finite(gaussians)
+    if m > 0:
+        proj = project(gaussians, camera, cfg)
+        bins = bin_gaussians(proj, width, height, cfg)
+    if m == 0 or bins.n_entries == 0:
+        rgb = dr.zeros(t.TensorXf, (height, width, 3)) + t.TensorXf(np.array(bg, np.float32)[None, None, :])
+        return RenderOutput(rgb=rgb, alpha=dr.zeros(t.TensorXf, (height, width)))
+    rgb, alpha = dr.custom(
+        _Rasterize, proj.mean2d, proj.conic, proj.color, proj.opacity, bins, width, height, cfg, bg
+    )
+    return RenderOutput(rgb=t.TensorXf(rgb, (height, width, 3)), alpha=t.TensorXf(alpha, (height, width)))

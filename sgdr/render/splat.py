@@ -439,8 +439,20 @@ def render(gaussians: Gaussians, camera: Camera, cfg: RenderConfig) -> RenderOut
         proj = project(gaussians, camera, cfg)
         bins = bin_gaussians(proj, width, height, cfg)
     if m == 0 or bins.n_entries == 0:
-        rgb = dr.zeros(t.TensorXf, (height, width, 3)) + t.TensorXf(np.array(bg, np.float32)[None, None, :])
-        return RenderOutput(rgb=rgb, alpha=dr.zeros(t.TensorXf, (height, width)))
+        # nothing visible: background, alpha 0, attached to the inputs with zero gradients so a
+        # caller's dr.backward stays well defined
+        def attached_zeros(n):
+            # opaque: a literal 0 would be folded out of the AD graph; a fresh one per output
+            # because Dr.Jit broadcasts a width-1 variable in place
+            g = gaussians
+            s = dr.sum(g.means.x) + dr.sum(g.log_scales.x) + dr.sum(g.rotations.x)
+            s = s + dr.sum(g.color_logits.x) + dr.sum(g.opacity_logits)
+            return dr.opaque(t.Float, 0.0) * s + dr.zeros(t.Float, n)
+
+        bg_img = np.broadcast_to(np.array(bg, np.float32), (height, width, 3)).ravel()
+        rgb = t.TensorXf(attached_zeros(height * width * 3) + t.Float(bg_img), (height, width, 3))
+        alpha = t.TensorXf(attached_zeros(height * width), (height, width))
+        return RenderOutput(rgb=rgb, alpha=alpha)
     rgb, alpha = dr.custom(
         _Rasterize, proj.mean2d, proj.conic, proj.color, proj.opacity, bins, width, height, cfg, bg
     )

@@ -101,10 +101,14 @@ def _quat_to_matrix(q):
 def project(g: Gaussians, camera: Camera, cfg: RenderConfig) -> Projected:
     """Phase 1: EWA projection of every Gaussian (recorded AD; one thread per Gaussian)."""
     t = ad()
-    R = [[float(v) for v in row] for row in camera.R]
-    tc = [float(v) for v in camera.t]
-    fx, fy = float(camera.K[0, 0]), float(camera.K[1, 1])
-    cx, cy = float(camera.K[0, 2]), float(camera.K[1, 2])
+    # camera constants as opaque JIT scalars: one compiled kernel serves every view
+    def c(x):
+        return dr.opaque(t.Float, float(x))
+
+    R = [[c(v) for v in row] for row in camera.R]
+    tc = [c(v) for v in camera.t]
+    fx, fy = c(camera.K[0, 0]), c(camera.K[1, 1])
+    cx, cy = c(camera.K[0, 2]), c(camera.K[1, 2])
     m = g.means
     # camera-space centre p = W μ + t  (OpenCV axes, z forward)
     p = [R[r][0] * m.x + R[r][1] * m.y + R[r][2] * m.z + tc[r] for r in range(3)]
@@ -115,8 +119,8 @@ def project(g: Gaussians, camera: Camera, cfg: RenderConfig) -> Projected:
     u = fx * p[0] * inv_z + cx
     v = fy * p[1] * inv_z + cy
     # Jacobian of the perspective map at p, with the 3DGS guard-band clamp of x/z, y/z
-    lim_x = cfg.guard_band * 0.5 * camera.width / fx
-    lim_y = cfg.guard_band * 0.5 * camera.height / fy
+    lim_x = c(cfg.guard_band * 0.5 * camera.width / camera.K[0, 0])
+    lim_y = c(cfg.guard_band * 0.5 * camera.height / camera.K[1, 1])
     tx = dr.clip(p[0] * inv_z, -lim_x, lim_x)
     ty = dr.clip(p[1] * inv_z, -lim_y, lim_y)
     J = ((fx * inv_z, 0.0, -fx * tx * inv_z), (0.0, fy * inv_z, -fy * ty * inv_z))
@@ -153,16 +157,30 @@ def project(g: Gaussians, camera: Camera, cfg: RenderConfig) -> Projected:
 def tile_rects(u, v, radius, width: int, height: int, tile: int):
     """Tile rectangle [x0, x1) x [y0, y1) covered by each footprint (3DGS `getRect`)."""
     t = ad()
-    tiles_x, tiles_y = -(-width // tile), -(-height // tile)
+    tiles_x, tiles_y = (dr.opaque(t.Float, -(-n // tile)) for n in (width, height))
 
     def clamp(x, hi):
-        return t.UInt32(dr.clip(x, 0, hi))
+        return t.UInt32(dr.clip(x, 0.0, hi))
 
     x0 = clamp(dr.floor((u - radius) / tile), tiles_x)
     x1 = clamp(dr.floor((u + radius + tile - 1) / tile), tiles_x)
     y0 = clamp(dr.floor((v - radius) / tile), tiles_y)
     y1 = clamp(dr.floor((v + radius + tile - 1) / tile), tiles_y)
     return x0, x1, y0, y1
+
+
+def _first_greater(sorted_values, query, n: int):
+    """For each query, the first index k in [0, n) with sorted_values[k] > query (binary search
+    with an opaque bound, so the kernel is reused for every n of the same bit length)."""
+    t = ad()
+    lo = dr.zeros(t.UInt32, dr.width(query))
+    hi = dr.opaque(t.UInt32, n - 1) + lo  # answer lies in [lo, hi]
+    for _ in range(max(int(n - 1).bit_length(), 1)):
+        mid = (lo + hi) >> 1
+        go_right = dr.gather(t.UInt32, sorted_values, mid) <= query
+        lo = dr.select(go_right, mid + 1, lo)
+        hi = dr.select(go_right, hi, mid)
+    return lo
 
 
 def bin_gaussians(proj: Projected, width: int, height: int, cfg: RenderConfig) -> Bins:
@@ -184,18 +202,18 @@ def bin_gaussians(proj: Projected, width: int, height: int, cfg: RenderConfig) -
     n = dr.select(r > 0, w_rect * (y1 - y0), 0)
     offsets = dr.cumsum(n)  # inclusive prefix sum, UInt32 [M]
     dr.eval(offsets, x0, y0, w_rect)
-    total = int(dr.gather(t.UInt32, offsets, m - 1)[0]) if m > 0 else 0
+    total = int(offsets[m - 1]) if m > 0 else 0
     if total == 0:
         zeros = dr.zeros(t.UInt32, n_tiles)
         return Bins(tiles_x, tiles_y, 0, t.UInt32(), zeros, zeros)
     e = dr.arange(t.UInt32, total)
     # k: position in depth order of the Gaussian owning entry e (first offsets[k] > e)
-    k = t.UInt32(dr.binary_search(0, m - 1, lambda i: dr.gather(t.UInt32, offsets, i) <= e))
+    k = _first_greater(offsets, e, m)
     local = e - (dr.gather(t.UInt32, offsets, k) - dr.gather(t.UInt32, n, k))
     w_k = dr.maximum(dr.gather(t.UInt32, w_rect, k), 1)  # >= 1 also in masked SIMD tail lanes
     tile_x = dr.gather(t.UInt32, x0, k) + local % w_k
     tile_y = dr.gather(t.UInt32, y0, k) + local // w_k
-    tile_id = tile_y * tiles_x + tile_x
+    tile_id = tile_y * dr.opaque(t.UInt32, tiles_x) + tile_x
     perm = dr.argsort(tile_id)
     entry_gaussian = dr.gather(t.UInt32, order, dr.gather(t.UInt32, k, perm))
     counts = dr.zeros(t.UInt32, n_tiles)
@@ -212,14 +230,17 @@ def _pixel_layout(width: int, height: int, tile: int, tiles_x: int, tiles_y: int
     one tile's list in lock-step. Returns (tile id, pixel x, y, inside-image mask) per thread and
     the thread index of every image pixel in row-major order."""
     t = ad()
+    n_threads, n_pixels = tiles_x * tiles_y * tile * tile, width * height
+    # image sizes as opaque JIT scalars: one compiled kernel serves every image size
+    width, height, tiles_x = (dr.opaque(t.UInt32, v) for v in (width, height, tiles_x))
     per_tile = tile * tile
-    i = dr.arange(t.UInt32, tiles_x * tiles_y * per_tile)
+    i = dr.arange(t.UInt32, n_threads)
     tile_id = i // per_tile
     local = i % per_tile
     px = (tile_id % tiles_x) * tile + local % tile
     py = (tile_id // tiles_x) * tile + local // tile
     inside = (px < width) & (py < height)
-    x = dr.arange(t.UInt32, width * height)
+    x = dr.arange(t.UInt32, n_pixels)
     ix, iy = x % width, x // width
     image_to_thread = ((iy // tile) * tiles_x + ix // tile) * per_tile + (iy % tile) * tile + ix % tile
     return tile_id, px, py, inside, image_to_thread

@@ -258,6 +258,28 @@ def _gaussian_alpha(mean2d, conic, opacity, pxf, pyf, cfg):
     return dx, dy, g, raw, alpha, contrib
 
 
+# Per-entry packed attributes: one packet load per loop iteration instead of ten gathers (the
+# LLVM backend turns gathers of consecutive floats into aligned packet loads + a transpose).
+_PACK = 12  # u, v, conic a, b, c, opacity, r, g, b, (pad x3)
+_GRAD = 12  # δu, δv, δa, δb, δc, δσ, δr, δg, δb, (pad x3)
+
+
+def _pack_entries(mean2d, conic, color, opacity, entry_gaussian):
+    """Flat Float [n_entries * _PACK]: the attributes of each tile-list entry, in list order."""
+    t = ad()
+    comps = [mean2d.x, mean2d.y, conic.x, conic.y, conic.z, opacity, color.x, color.y, color.z]
+    n = dr.width(entry_gaussian)
+    gathered = [dr.gather(t.Float, c_, entry_gaussian) for c_ in comps]
+    gathered += [dr.zeros(t.Float, n)] * (_PACK - len(comps))
+    return dr.ravel(t.ArrayXf(gathered))
+
+
+def _load(packed, j, active=True):
+    t = ad()
+    e = dr.gather(t.ArrayXf, packed, j, active, shape=(_PACK, dr.width(j)))
+    return t.Array2f(e[0], e[1]), t.Array3f(e[2], e[3], e[4]), e[5], t.Array3f(e[6], e[7], e[8])
+
+
 class _Rasterize(dr.CustomOp):
     """Phase 3 as a custom differentiable op: front-to-back forward, back-to-front adjoint.
 
@@ -267,30 +289,28 @@ class _Rasterize(dr.CustomOp):
 
     def eval(self, mean2d, conic, color, opacity, bins: Bins, width, height, cfg, background):
         t = ad()
-        self.mean2d, self.conic, self.color, self.opacity = mean2d, conic, color, opacity
+        self.m = dr.width(opacity)
         self.bins, self.width, self.height, self.cfg, self.bg = bins, width, height, cfg, background
         ts = int(cfg.tile_size)
         tile_id, px, py, inside, image_to_thread = _pixel_layout(width, height, ts, bins.tiles_x, bins.tiles_y)
         self.layout = (tile_id, px, py, inside, image_to_thread)
+        packed = _pack_entries(mean2d, conic, color, opacity, bins.entry_gaussian)
+        dr.eval(packed)
+        self.packed = packed
         start = dr.gather(t.UInt32, bins.tile_start, tile_id)
         end = dr.select(inside, dr.gather(t.UInt32, bins.tile_end, tile_id), start)
         pxf, pyf = t.Float(px) + 0.5, t.Float(py) + 0.5
-        ids = bins.entry_gaussian
         t_min = float(cfg.transmittance_min)
 
         def cond(j, T, C, last, done):
             return (j < end) & ~done
 
         def body(j, T, C, last, done):
-            gid = dr.gather(t.UInt32, ids, j)
-            m2 = dr.gather(t.Array2f, mean2d, gid)
-            co = dr.gather(t.Array3f, conic, gid)
-            op = dr.gather(t.Float, opacity, gid)
+            m2, co, op, col = _load(packed, j)
             _, _, _, _, alpha, contrib = _gaussian_alpha(m2, co, op, pxf, pyf, cfg)
             T_next = T * (1.0 - alpha)
             stop = contrib & (T_next < t_min)
             contrib &= ~stop
-            col = dr.gather(t.Array3f, color, gid, contrib)
             C = dr.select(contrib, C + col * (alpha * T), C)
             T = dr.select(contrib, T_next, T)
             last = dr.select(contrib, j + 1, last)
@@ -315,17 +335,11 @@ class _Rasterize(dr.CustomOp):
         cfg, bins = self.cfg, self.bins
         tile_id, px, py, inside, image_to_thread = self.layout
         n_threads = dr.width(tile_id)
-        m = dr.width(self.opacity)
         # adjoints of the image, back to tile-major thread order
         g_C = dr.zeros(t.Array3f, n_threads)
         g_A = dr.zeros(t.Float, n_threads)
-        if dr.width(g_rgb_flat) > 1 or dr.width(g_alpha_img) > 1:
-            g_rgb = dr.unravel(t.Array3f, t.Float(g_rgb_flat)) if dr.width(g_rgb_flat) > 1 else t.Array3f(g_rgb_flat)
-            dr.scatter(g_C, g_rgb, image_to_thread)
-            dr.scatter(g_A, t.Float(g_alpha_img), image_to_thread)
-        else:  # scalar (broadcast) adjoints
-            g_C = t.Array3f(g_rgb_flat) * dr.select(inside, 1.0, 0.0)
-            g_A = t.Float(g_alpha_img) * dr.select(inside, 1.0, 0.0)
+        dr.scatter(g_C, dr.unravel(t.Array3f, g_rgb_flat + dr.zeros(t.Float, 3 * dr.width(image_to_thread))), image_to_thread)
+        dr.scatter(g_A, g_alpha_img + dr.zeros(t.Float, dr.width(image_to_thread)), image_to_thread)
         bg = t.Array3f(*self.bg)
         # every pixel of a tile starts at the tile's furthest last contributor (lock-step SIMD)
         tiles = bins.tiles_x * bins.tiles_y
@@ -335,52 +349,42 @@ class _Rasterize(dr.CustomOp):
         j0 = dr.select(inside, dr.gather(t.UInt32, tile_last, tile_id), start)
         pxf, pyf = t.Float(px) + 0.5, t.Float(py) + 0.5
         last, T_N = self.last, self.T_final
-        ids = bins.entry_gaussian
-        mean2d, conic, color, opacity = self.mean2d, self.conic, self.color, self.opacity
-
-        # per-Gaussian adjoint accumulators (scatter targets)
-        d_u, d_v = dr.zeros(t.Float, m), dr.zeros(t.Float, m)
-        d_ca, d_cb, d_cc = dr.zeros(t.Float, m), dr.zeros(t.Float, m), dr.zeros(t.Float, m)
-        d_r, d_g, d_b = dr.zeros(t.Float, m), dr.zeros(t.Float, m), dr.zeros(t.Float, m)
-        d_o = dr.zeros(t.Float, m)
+        packed = self.packed
+        n_entries = bins.n_entries
+        # per-entry adjoint accumulator [n_entries * _GRAD]; reduced to Gaussians afterwards
+        d_entry = dr.zeros(t.Float, n_entries * _GRAD)
         g_bg = dr.dot(g_C, bg)  # δL/δC · background
+        zero = dr.zeros(t.Float, n_threads)
 
         def cond(j, T, S):
             return j > start
 
         def body(j, T, S):
             jj = j - 1
-            active = jj < last
-            gid = dr.gather(t.UInt32, ids, jj)
-            m2 = dr.gather(t.Array2f, mean2d, gid)
-            co = dr.gather(t.Array3f, conic, gid)
-            op = dr.gather(t.Float, opacity, gid)
+            m2, co, op, col = _load(packed, jj)
             dx, dy, gauss, raw, alpha, contrib = _gaussian_alpha(m2, co, op, pxf, pyf, cfg)
-            contrib &= active
-            col = dr.gather(t.Array3f, color, gid, contrib)
+            contrib &= jj < last
             one_minus = 1.0 - alpha
             T_i = T / one_minus  # transmittance in front of entry jj
             # δL/δc_i = α_i T_i δL/δC
             dcol = g_C * (alpha * T_i)
             # δL/δα_i (see module docstring)
-            dalpha = (
-                T_i * dr.dot(col - S, g_C)
-                + (T_N / one_minus) * (g_A - g_bg)
-            )
+            dalpha = T_i * dr.dot(col - S, g_C) + (T_N / one_minus) * (g_A - g_bg)
             dalpha = dr.select(raw < cfg.alpha_max, dalpha, 0.0)  # clamped α has no gradient
             # α = σ G, G = exp(power)
             dop = dalpha * gauss
             dpower = dalpha * alpha
-            du = -dpower * (co.x * dx + co.y * dy)
-            dv = -dpower * (co.z * dy + co.y * dx)
-            dca = -0.5 * dpower * dx * dx
-            dcb = -dpower * dx * dy
-            dcc = -0.5 * dpower * dy * dy
-            for target, value in (
-                (d_u, du), (d_v, dv), (d_ca, dca), (d_cb, dcb), (d_cc, dcc),
-                (d_r, dcol.x), (d_g, dcol.y), (d_b, dcol.z), (d_o, dop),
-            ):
-                dr.scatter_add(target, value, gid, contrib, mode=_SCATTER_MODE)
+            grads = t.ArrayXf(
+                [
+                    -dpower * (co.x * dx + co.y * dy),  # δu
+                    -dpower * (co.z * dy + co.y * dx),  # δv
+                    -0.5 * dpower * dx * dx,  # δ conic a
+                    -dpower * dx * dy,  # δ conic b
+                    -0.5 * dpower * dy * dy,  # δ conic c
+                    dop, dcol.x, dcol.y, dcol.z, zero, zero, zero,
+                ]
+            )
+            dr.scatter_add(d_entry, grads, jj, contrib, mode=_SCATTER_MODE)
             S = dr.select(contrib, col * alpha + one_minus * S, S)
             T = dr.select(contrib, T_i, T)
             return jj, T, S
@@ -391,10 +395,16 @@ class _Rasterize(dr.CustomOp):
             body,
             label="splat_backward",
         )
-        self.set_grad_in("mean2d", t.Array2f(d_u, d_v))
-        self.set_grad_in("conic", t.Array3f(d_ca, d_cb, d_cc))
-        self.set_grad_in("color", t.Array3f(d_r, d_g, d_b))
-        self.set_grad_in("opacity", d_o)
+        # entries -> Gaussians (a Gaussian appears once per overlapped tile)
+        m = self.m
+        d_entry = dr.gather(t.ArrayXf, d_entry, dr.arange(t.UInt32, n_entries), shape=(_GRAD, n_entries))
+        d = [dr.zeros(t.Float, m) for _ in range(9)]
+        for k in range(9):
+            dr.scatter_add(d[k], d_entry[k], bins.entry_gaussian)
+        self.set_grad_in("mean2d", t.Array2f(d[0], d[1]))
+        self.set_grad_in("conic", t.Array3f(d[2], d[3], d[4]))
+        self.set_grad_in("opacity", d[5])
+        self.set_grad_in("color", t.Array3f(d[6], d[7], d[8]))
 
     def forward(self):
         raise NotImplementedError(

@@ -113,12 +113,86 @@ def _zero_pad(x_flat, h, w, c, r):
     return dr.gather(t.Float, x_flat, src, inside)
 
 
-def ssim_map(a, b, border: str = "valid"):
-    """Per-pixel SSIM as a flat Float over the averaged region, plus that region's shape."""
+def _filter_valid_adjoint(d_flat, h, w, c, taps):
+    """Adjoint of `_filter_valid`: [h-2r, w-2r, c] -> [h, w, c] (a zero-padded 'full' filter;
+    the Gaussian taps are symmetric, so no flip is needed)."""
+    t = ad()
+    r = (len(taps) - 1) // 2
+    ho, wo = h - 2 * r, w - 2 * r
+    n_tmp, n_out = h * wo * c, h * w * c
+    ho_, wo_, w_, c_ = (dr.opaque(t.Int32, v) for v in (ho, wo, w, c))
+    # vertical adjoint: tmp[y, xo, ch] = Σ_k w_k d[y - k, xo, ch], 0 <= y - k < ho
+    i = t.Int32(dr.arange(t.UInt32, n_tmp))
+    y = i // (wo_ * c_)
+    tmp = dr.zeros(t.Float, n_tmp)
+    for k, wk in enumerate(taps):
+        ok = (y - k >= 0) & (y - k < ho_)
+        tmp += float(wk) * dr.gather(t.Float, d_flat, t.UInt32(dr.select(ok, i - k * wo_ * c_, 0)), ok)
+    # horizontal adjoint: out[y, x, ch] = Σ_k w_k tmp[y, x - k, ch], 0 <= x - k < wo
+    j = t.Int32(dr.arange(t.UInt32, n_out))
+    yy, rem = j // (w_ * c_), j % (w_ * c_)
+    x, ch = rem // c_, rem % c_
+    out = dr.zeros(t.Float, n_out)
+    for k, wk in enumerate(taps):
+        ok = (x - k >= 0) & (x - k < wo_)
+        src = (yy * wo_ + x - k) * c_ + ch
+        out += float(wk) * dr.gather(t.Float, tmp, t.UInt32(dr.select(ok, src, 0)), ok)
+    return out
+
+
+def _ssim_terms(xa, xb, h, w, c, taps):
+    """Filtered moments and the SSIM map (flat, over the valid region)."""
+    mu_a, mu_b = _filter_valid(xa, h, w, c, taps), _filter_valid(xb, h, w, c, taps)
+    e_aa = _filter_valid(xa * xa, h, w, c, taps)
+    e_bb = _filter_valid(xb * xb, h, w, c, taps)
+    e_ab = _filter_valid(xa * xb, h, w, c, taps)
+    c1, c2 = SSIM_K1**2, SSIM_K2**2  # data range 1
+    A1 = 2 * mu_a * mu_b + c1
+    A2 = 2 * (e_ab - mu_a * mu_b) + c2
+    B1 = mu_a * mu_a + mu_b * mu_b + c1
+    B2 = (e_aa - mu_a * mu_a) + (e_bb - mu_b * mu_b) + c2
+    return mu_a, mu_b, A1, A2, B1, B2, (A1 * A2) / (B1 * B2)
+
+
+class _MeanSSIM(dr.CustomOp):
+    """mean(SSIM map) with a hand-written adjoint: the per-pixel partial derivatives w.r.t. the
+    filtered moments (μ, E[x²], E[xy]) are pulled back through the (linear) Gaussian filter by
+    its adjoint, a zero-padded filter; gathers only, no atomic scatters."""
+
+    def eval(self, xa, xb, h, w, c, need_b):
+        taps = gaussian_window()
+        self.args = (xa, xb, h, w, c, taps, need_b)
+        mu_a, mu_b, A1, A2, B1, B2, S = _ssim_terms(xa, xb, h, w, c, taps)
+        self.terms = (mu_a, mu_b, A1, A2, B1, B2, S)
+        self.n = dr.width(S)
+        dr.eval(self.terms)
+        return dr.mean(S)
+
+    def backward(self):
+        xa, xb, h, w, c, taps, need_b = self.args
+        mu_a, mu_b, A1, A2, B1, B2, S = self.terms
+        g = self.grad_out() / self.n
+        # ∂S/∂E[ab] and ∂S/∂E[aa] (= ∂S/∂E[bb])
+        d_ab = _filter_valid_adjoint(2 * S / A2 * g, h, w, c, taps)
+        d_sq = _filter_valid_adjoint(-S / B2 * g, h, w, c, taps)
+
+        def d_mu(mu_self, mu_other):
+            return S * (2 * mu_other / A1 - 2 * mu_other / A2 - 2 * mu_self / B1 + 2 * mu_self / B2) * g
+
+        ga = _filter_valid_adjoint(d_mu(mu_a, mu_b), h, w, c, taps) + 2 * xa * d_sq + xb * d_ab
+        self.set_grad_in("xa", ga)
+        if need_b:
+            gb = _filter_valid_adjoint(d_mu(mu_b, mu_a), h, w, c, taps) + 2 * xb * d_sq + xa * d_ab
+            self.set_grad_in("xb", gb)
+
+    def name(self):
+        return "MeanSSIM"
+
+
+def _prepare(a, b, border):
     a, b = _pair(a, b)
     h, w, c = a.shape
-    taps = gaussian_window()
-    r = (len(taps) - 1) // 2
+    r = (len(gaussian_window()) - 1) // 2
     xa, xb = a.array, b.array
     if border == "zero":
         xa, xb = _zero_pad(xa, h, w, c, r), _zero_pad(xb, h, w, c, r)
@@ -127,20 +201,23 @@ def ssim_map(a, b, border: str = "valid"):
         raise LossError(f"ssim border must be 'valid' or 'zero', got {border!r}")
     if h <= 2 * r or w <= 2 * r:
         raise LossError(f"SSIM needs images larger than {2 * r + 1}x{2 * r + 1} pixels, got {a.shape}")
-    mu_a, mu_b = _filter_valid(xa, h, w, c, taps), _filter_valid(xb, h, w, c, taps)
-    e_aa = _filter_valid(xa * xa, h, w, c, taps)
-    e_bb = _filter_valid(xb * xb, h, w, c, taps)
-    e_ab = _filter_valid(xa * xb, h, w, c, taps)
-    var_a, var_b, cov = e_aa - mu_a * mu_a, e_bb - mu_b * mu_b, e_ab - mu_a * mu_b
-    c1, c2 = SSIM_K1**2, SSIM_K2**2  # data range 1
-    s = ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / ((mu_a * mu_a + mu_b * mu_b + c1) * (var_a + var_b + c2))
-    return s, (h - 2 * r, w - 2 * r, c)
+    return xa, xb, h, w, c
+
+
+def ssim_map(a, b, border: str = "valid"):
+    """Per-pixel SSIM as a flat Float over the averaged region [h', w', c] and that shape
+    (recorded AD; `ssim` uses the faster custom adjoint)."""
+    xa, xb, h, w, c = _prepare(a, b, border)
+    taps = gaussian_window()
+    r = (len(taps) - 1) // 2
+    return _ssim_terms(xa, xb, h, w, c, taps)[-1], (h - 2 * r, w - 2 * r, c)
 
 
 def ssim(a, b, border: str = "valid"):
     """Mean SSIM (a TensorXf scalar); see the module docstring for `border`."""
-    s, _ = ssim_map(a, b, border)
-    return dr.mean(ad().TensorXf(s), axis=None)
+    xa, xb, h, w, c = _prepare(a, b, border)
+    m = dr.custom(_MeanSSIM, xa, xb, h, w, c, bool(dr.grad_enabled(xb)))
+    return ad().TensorXf(m, ())
 
 
 def dssim(a, b, border: str = "valid"):

@@ -7,10 +7,11 @@ Three phases, as in 3DGS (Kerbl et al. 2023):
 1. **Projection** (`project`, recorded Dr.Jit AD, one thread per Gaussian): camera-space
    centre p = W μ + t, image centre (u, v) = (fx p_x/p_z + cx, fy p_y/p_z + cy), screen
    covariance Σ' = J W Σ Wᵀ Jᵀ + δ I (EWA splatting; δ = `cfg.dilation` px² low-pass),
-   its inverse (the *conic*), a 3σ footprint radius, colour c = sigmoid(logits) and opacity
+   its inverse (the *conic*), a footprint radius (3σ, or less where the opacity is low: the
+   disc outside which α < `cfg.alpha_min`), colour c = sigmoid(logits) and opacity
    σ = sigmoid(logit). Gaussians with p_z <= `cfg.near` are culled.
 2. **Binning** (`bin_gaussians`, no gradients): each visible Gaussian is duplicated into
-   every 16x16 tile its footprint rectangle overlaps. The per-Gaussian tile counts are turned
+   every 16x16 tile its footprint disc reaches. The per-Gaussian tile counts are turned
    into offsets by a prefix sum, the entries are sorted by tile with `dr.argsort` (stable) of
    detached keys after the Gaussians were put in depth order, so every tile holds a
    variable-length, front-to-back list. Nothing is ever dropped by a per-tile cap.
@@ -140,9 +141,13 @@ def project(g: Gaussians, camera: Camera, cfg: RenderConfig) -> Projected:
     ad_, cd_, dd_ = dr.detach(a), dr.detach(c), dr.detach(det)
     mid = 0.5 * (ad_ + cd_)
     lam = mid + dr.sqrt(dr.maximum(0.1, mid * mid - dd_))
-    radius = dr.select(visible, dr.ceil(3.0 * dr.sqrt(lam)), 0.0)
     color = dr.rcp(1.0 + dr.exp(-g.color_logits))
     opacity = dr.rcp(1.0 + dr.exp(-g.opacity_logits))
+    # α >= alpha_min needs dᵀΣ'⁻¹d <= 2 ln(σ / alpha_min), inside |d| <= sqrt(that · λ_max):
+    # the footprint is that disc, capped at 3σ as in 3DGS (a pure work saving: pixels outside it
+    # are skipped by the α test anyway, except beyond 3σ where 3DGS also truncates)
+    k_sigma = dr.minimum(3.0, dr.sqrt(dr.maximum(2.0 * dr.log(dr.detach(opacity) / cfg.alpha_min), 0.0)))
+    radius = dr.select(visible, dr.ceil(k_sigma * dr.sqrt(lam)), 0.0)
     return Projected(
         mean2d=t.Array2f(u, v),
         conic=conic,
@@ -213,11 +218,18 @@ def bin_gaussians(proj: Projected, width: int, height: int, cfg: RenderConfig) -
     w_k = dr.maximum(dr.gather(t.UInt32, w_rect, k), 1)  # >= 1 also in masked SIMD tail lanes
     tile_x = dr.gather(t.UInt32, x0, k) + local % w_k
     tile_y = dr.gather(t.UInt32, y0, k) + local // w_k
-    tile_id = tile_y * dr.opaque(t.UInt32, tiles_x) + tile_x
+    # keep the entry only if the footprint disc reaches a pixel centre of the tile (drops the
+    # corners of the bounding square); dropped entries get a sentinel key and sort to the end
+    u_k, v_k, r_k = dr.gather(t.Float, u, k), dr.gather(t.Float, v, k), dr.gather(t.Float, r, k)
+    tx0, ty0 = t.Float(tile_x * ts) + 0.5, t.Float(tile_y * ts) + 0.5
+    dx = u_k - dr.clip(u_k, tx0, tx0 + (ts - 1))
+    dy = v_k - dr.clip(v_k, ty0, ty0 + (ts - 1))
+    keep = dx * dx + dy * dy <= r_k * r_k
+    tile_id = dr.select(keep, tile_y * dr.opaque(t.UInt32, tiles_x) + tile_x, dr.opaque(t.UInt32, n_tiles))
     perm = dr.argsort(tile_id)
     entry_gaussian = dr.gather(t.UInt32, order, dr.gather(t.UInt32, k, perm))
     counts = dr.zeros(t.UInt32, n_tiles)
-    dr.scatter_add(counts, t.UInt32(1), tile_id)
+    dr.scatter_add(counts, t.UInt32(1), tile_id, keep)
     tile_end = dr.cumsum(counts)
     tile_start = tile_end - counts
     dr.eval(entry_gaussian, tile_start, tile_end)

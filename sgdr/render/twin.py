@@ -1,6 +1,6 @@
 """Slow, dense NumPy twin of `sgdr.render.splat` (float64; used only by tests).
 
-Same projection, footprint radius, tile membership, depth order, alpha cutoffs, α clamp and
+Same projection, footprint radius, tile membership (bounding square, then the disc test), depth order, alpha cutoffs, α clamp and
 early termination as the Dr.Jit renderer, written as plainly as possible: Gaussians are
 visited one at a time in front-to-back order and composited into every pixel of every tile
 their footprint rectangle overlaps (vectorised over pixels only). Gradients of the twin are
@@ -62,12 +62,15 @@ def project_numpy(p: dict, camera: Camera, cfg: RenderConfig) -> dict:
     dets = np.where(visible, det, 1.0)
     mid = 0.5 * (a + c)
     lam = mid + np.sqrt(np.maximum(0.1, mid * mid - det))
-    radius = np.where(visible, np.ceil(3.0 * np.sqrt(lam)), 0.0)
+    opacity = _sigmoid(p["opacity_logits"])
+    with np.errstate(divide="ignore"):
+        k_sigma = np.minimum(3.0, np.sqrt(np.maximum(2.0 * np.log(opacity / cfg.alpha_min), 0.0)))
+    radius = np.where(visible, np.ceil(k_sigma * np.sqrt(lam)), 0.0)
     return {
         "uv": np.stack([u, v], -1),
         "conic": np.stack([c / dets, -b / dets, a / dets], -1),
         "color": _sigmoid(p["color_logits"]),
-        "opacity": _sigmoid(p["opacity_logits"]),
+        "opacity": opacity,
         "depth": z,
         "radius": radius,
     }
@@ -102,6 +105,11 @@ def render_numpy(p: dict, camera: Camera, cfg: RenderConfig) -> tuple[np.ndarray
         y0 = int(np.clip(np.floor((v - r) / ts), 0, tiles_y))
         y1 = int(np.clip(np.floor((v + r + ts - 1) / ts), 0, tiles_y))
         in_rect = (tile_of_x >= x0) & (tile_of_x < x1) & (tile_of_y >= y0) & (tile_of_y < y1)
+        # the footprint disc must reach a pixel centre of the pixel's tile
+        tx0, ty0 = tile_of_x * ts + 0.5, tile_of_y * ts + 0.5
+        ddx = u - np.clip(u, tx0, tx0 + ts - 1)
+        ddy = v - np.clip(v, ty0, ty0 + ts - 1)
+        in_rect &= ddx * ddx + ddy * ddy <= r * r
         a_, b_, c_ = q["conic"][i]
         dx, dy = u - pxc, v - pyc
         power = -0.5 * (a_ * dx * dx + c_ * dy * dy) - b_ * dx * dy

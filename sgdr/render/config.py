@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 @dataclass
 class RenderConfig:
     tile_size: int = 16  # pixels per tile side for binning
+    pixels_per_thread: int = 4  # rows of a tile column shaded by one thread (divides tile_size)
     dilation: float = 0.3  # screen-space covariance dilation, pixels² (3DGS low-pass)
     near: float = 0.01  # near plane, scene units; Gaussians in front of it are culled
     alpha_min: float = 1.0 / 255.0  # contributions below this alpha are skipped

@@ -237,25 +237,30 @@ def bin_gaussians(proj: Projected, width: int, height: int, cfg: RenderConfig) -
 
 
 # ---------------------------------------------------------------------------- phase 3
-def _pixel_layout(width: int, height: int, tile: int, tiles_x: int, tiles_y: int):
-    """Threads are tile-major (all pixels of tile 0, then tile 1, ...) so a SIMD packet runs
-    one tile's list in lock-step. Returns (tile id, pixel x, y, inside-image mask) per thread and
-    the thread index of every image pixel in row-major order."""
+def _pixel_layout(width: int, height: int, tile: int, tiles_x: int, tiles_y: int, k_px: int):
+    """Thread layout of phase 3. Threads are tile-major (all threads of tile 0, then tile 1, ...)
+    so that a SIMD packet walks one tile list in lock-step, and each thread shades a vertical
+    strip of `k_px` pixels, so one load of a list entry serves k_px pixels.
+
+    Returns per thread: tile id, pixel column x, first row y0 (strip rows y0 .. y0 + k_px - 1);
+    and for every image pixel (row-major) its (thread, strip slot) as a flat index
+    thread * k_px + slot.
+    """
     t = ad()
-    n_threads, n_pixels = tiles_x * tiles_y * tile * tile, width * height
+    per_tile = tile * tile // k_px
+    n_threads, n_pixels = tiles_x * tiles_y * per_tile, width * height
     # image sizes as opaque JIT scalars: one compiled kernel serves every image size
-    width, height, tiles_x = (dr.opaque(t.UInt32, v) for v in (width, height, tiles_x))
-    per_tile = tile * tile
+    width_, tiles_x_ = dr.opaque(t.UInt32, width), dr.opaque(t.UInt32, tiles_x)
     i = dr.arange(t.UInt32, n_threads)
     tile_id = i // per_tile
     local = i % per_tile
-    px = (tile_id % tiles_x) * tile + local % tile
-    py = (tile_id // tiles_x) * tile + local // tile
-    inside = (px < width) & (py < height)
+    px = (tile_id % tiles_x_) * tile + local % tile
+    py0 = (tile_id // tiles_x_) * tile + (local // tile) * k_px
     x = dr.arange(t.UInt32, n_pixels)
-    ix, iy = x % width, x // width
-    image_to_thread = ((iy // tile) * tiles_x + ix // tile) * per_tile + (iy % tile) * tile + ix % tile
-    return tile_id, px, py, inside, image_to_thread
+    ix, iy = x % width_, x // width_
+    thread = ((iy // tile) * tiles_x_ + ix // tile) * per_tile + ((iy % tile) // k_px) * tile + ix % tile
+    image_to_slot = thread * k_px + (iy % tile) % k_px
+    return tile_id, px, py0, image_to_slot
 
 
 def _gaussian_alpha(mean2d, conic, opacity, pxf, pyf, cfg):
@@ -302,71 +307,105 @@ class _Rasterize(dr.CustomOp):
     def eval(self, mean2d, conic, color, opacity, bins: Bins, width, height, cfg, background):
         t = ad()
         self.m = dr.width(opacity)
-        self.bins, self.width, self.height, self.cfg, self.bg = bins, width, height, cfg, background
-        ts = int(cfg.tile_size)
-        tile_id, px, py, inside, image_to_thread = _pixel_layout(width, height, ts, bins.tiles_x, bins.tiles_y)
-        self.layout = (tile_id, px, py, inside, image_to_thread)
+        self.bins, self.cfg, self.bg = bins, cfg, background
+        ts, kp = int(cfg.tile_size), int(cfg.pixels_per_thread)
+        tile_id, px, py0, image_to_slot = _pixel_layout(width, height, ts, bins.tiles_x, bins.tiles_y, kp)
+        self.layout = (tile_id, px, py0, image_to_slot)
         packed = _pack_entries(mean2d, conic, color, opacity, bins.entry_gaussian)
         dr.eval(packed)
         self.packed = packed
+        n = dr.width(tile_id)
         start = dr.gather(t.UInt32, bins.tile_start, tile_id)
-        end = dr.select(inside, dr.gather(t.UInt32, bins.tile_end, tile_id), start)
-        pxf, pyf = t.Float(px) + 0.5, t.Float(py) + 0.5
+        end = dr.gather(t.UInt32, bins.tile_end, tile_id)
+        pxf = t.Float(px) + 0.5
+        pyf = [t.Float(py0 + k) + 0.5 for k in range(kp)]
+        w_, h_ = dr.opaque(t.UInt32, width), dr.opaque(t.UInt32, height)
+        done0 = [~((px < w_) & (py0 + k < h_)) for k in range(kp)]  # outside the image
         t_min = float(cfg.transmittance_min)
 
         def cond(j, T, C, last, done):
-            return (j < end) & ~done
+            alive = ~done[0]
+            for d in done[1:]:
+                alive |= ~d
+            return (j < end) & alive
 
         def body(j, T, C, last, done):
             m2, co, op, col = _load(packed, j)
-            _, _, _, _, alpha, contrib = _gaussian_alpha(m2, co, op, pxf, pyf, cfg)
-            T_next = T * (1.0 - alpha)
-            stop = contrib & (T_next < t_min)
-            contrib &= ~stop
-            C = dr.select(contrib, C + col * (alpha * T), C)
-            T = dr.select(contrib, T_next, T)
-            last = dr.select(contrib, j + 1, last)
-            return j + 1, T, C, last, stop
+            T, C, last, done = list(T), list(C), list(last), list(done)
+            for k in range(kp):
+                _, _, _, _, alpha, contrib = _gaussian_alpha(m2, co, op, pxf, pyf[k], cfg)
+                contrib &= ~done[k]
+                T_next = T[k] * (1.0 - alpha)
+                stop = contrib & (T_next < t_min)
+                contrib &= ~stop
+                C[k] = dr.select(contrib, C[k] + col * (alpha * T[k]), C[k])
+                T[k] = dr.select(contrib, T_next, T[k])
+                last[k] = dr.select(contrib, j + 1, last[k])
+                done[k] = done[k] | stop
+            return j + 1, tuple(T), tuple(C), tuple(last), tuple(done)
 
         j, T, C, last, _ = dr.while_loop(
-            (t.UInt32(start), t.Float(1.0), dr.zeros(t.Array3f, dr.width(start)), t.UInt32(start), t.Bool(False)),
+            (
+                t.UInt32(start),
+                tuple(dr.ones(t.Float, n) for _ in range(kp)),
+                tuple(dr.zeros(t.Array3f, n) for _ in range(kp)),
+                tuple(t.UInt32(start) for _ in range(kp)),
+                tuple(done0),
+            ),
             cond,
             body,
             label="splat_forward",
         )
-        C = C + T * t.Array3f(*background)
-        self.T_final, self.last = T, last
-        dr.eval(T, last, C)
-        rgb = dr.gather(t.Array3f, C, image_to_thread)
-        alpha = 1.0 - dr.gather(t.Float, T, image_to_thread)
+        dr.eval(T, C, last)  # one loop kernel (the scatters below would each re-run it)
+        # interleave the strip slots: flat index thread * kp + slot
+        bg = t.Array3f(*background)
+        T_all = dr.zeros(t.Float, n * kp)
+        C_all = dr.zeros(t.Array3f, n * kp)
+        last_all = dr.zeros(t.UInt32, n * kp)
+        slot0 = dr.arange(t.UInt32, n) * kp
+        for k in range(kp):
+            dr.scatter(T_all, T[k], slot0 + k)
+            dr.scatter(C_all, C[k] + T[k] * bg, slot0 + k)
+            dr.scatter(last_all, last[k], slot0 + k)
+        self.T_final, self.last = T_all, last_all
+        dr.eval(T_all, C_all, last_all)
+        rgb = dr.gather(t.Array3f, C_all, image_to_slot)
+        alpha = 1.0 - dr.gather(t.Float, T_all, image_to_slot)
         return dr.ravel(rgb), alpha
 
     def backward(self):
         t = ad()
         g_rgb_flat, g_alpha_img = self.grad_out()
         cfg, bins = self.cfg, self.bins
-        tile_id, px, py, inside, image_to_thread = self.layout
-        n_threads = dr.width(tile_id)
-        # adjoints of the image, back to tile-major thread order
-        g_C = dr.zeros(t.Array3f, n_threads)
-        g_A = dr.zeros(t.Float, n_threads)
-        dr.scatter(g_C, dr.unravel(t.Array3f, g_rgb_flat + dr.zeros(t.Float, 3 * dr.width(image_to_thread))), image_to_thread)
-        dr.scatter(g_A, g_alpha_img + dr.zeros(t.Float, dr.width(image_to_thread)), image_to_thread)
+        kp = int(cfg.pixels_per_thread)
+        tile_id, px, py0, image_to_slot = self.layout
+        n = dr.width(tile_id)
+        n_px = dr.width(image_to_slot)
+        # adjoints of the image, into (thread, slot) order; pixels outside the image stay 0
+        g_C_all = dr.zeros(t.Array3f, n * kp)
+        g_A_all = dr.zeros(t.Float, n * kp)
+        dr.scatter(g_C_all, dr.unravel(t.Array3f, g_rgb_flat + dr.zeros(t.Float, 3 * n_px)), image_to_slot)
+        dr.scatter(g_A_all, g_alpha_img + dr.zeros(t.Float, n_px), image_to_slot)
+        slot0 = dr.arange(t.UInt32, n) * kp
+        g_C = [dr.gather(t.Array3f, g_C_all, slot0 + k) for k in range(kp)]
+        g_A = [dr.gather(t.Float, g_A_all, slot0 + k) for k in range(kp)]
+        T_N = [dr.gather(t.Float, self.T_final, slot0 + k) for k in range(kp)]
+        last = [dr.gather(t.UInt32, self.last, slot0 + k) for k in range(kp)]
         bg = t.Array3f(*self.bg)
-        # every pixel of a tile starts at the tile's furthest last contributor (lock-step SIMD)
-        tiles = bins.tiles_x * bins.tiles_y
-        tile_last = dr.zeros(t.UInt32, tiles)
-        dr.scatter_reduce(dr.ReduceOp.Max, tile_last, self.last, tile_id)
+        g_bg = [dr.dot(g_C[k], bg) for k in range(kp)]  # δL/δC · background
+        # every thread of a tile starts at the tile's furthest last contributor (lock-step SIMD)
+        tile_last = dr.zeros(t.UInt32, bins.tiles_x * bins.tiles_y)
+        for k in range(kp):
+            dr.scatter_reduce(dr.ReduceOp.Max, tile_last, last[k], tile_id)
         start = dr.gather(t.UInt32, bins.tile_start, tile_id)
-        j0 = dr.select(inside, dr.gather(t.UInt32, tile_last, tile_id), start)
-        pxf, pyf = t.Float(px) + 0.5, t.Float(py) + 0.5
-        last, T_N = self.last, self.T_final
+        j0 = dr.maximum(dr.gather(t.UInt32, tile_last, tile_id), start)
+        pxf = t.Float(px) + 0.5
+        pyf = [t.Float(py0 + k) + 0.5 for k in range(kp)]
         packed = self.packed
         n_entries = bins.n_entries
         # per-entry adjoint accumulator [n_entries * _GRAD]; reduced to Gaussians afterwards
         d_entry = dr.zeros(t.Float, n_entries * _GRAD)
-        g_bg = dr.dot(g_C, bg)  # δL/δC · background
-        zero = dr.zeros(t.Float, n_threads)
+        zero = dr.zeros(t.Float, n)
 
         def cond(j, T, S):
             return j > start
@@ -374,35 +413,38 @@ class _Rasterize(dr.CustomOp):
         def body(j, T, S):
             jj = j - 1
             m2, co, op, col = _load(packed, jj)
-            dx, dy, gauss, raw, alpha, contrib = _gaussian_alpha(m2, co, op, pxf, pyf, cfg)
-            contrib &= jj < last
-            one_minus = 1.0 - alpha
-            T_i = T / one_minus  # transmittance in front of entry jj
-            # δL/δc_i = α_i T_i δL/δC
-            dcol = g_C * (alpha * T_i)
-            # δL/δα_i (see module docstring)
-            dalpha = T_i * dr.dot(col - S, g_C) + (T_N / one_minus) * (g_A - g_bg)
-            dalpha = dr.select(raw < cfg.alpha_max, dalpha, 0.0)  # clamped α has no gradient
-            # α = σ G, G = exp(power)
-            dop = dalpha * gauss
-            dpower = dalpha * alpha
-            grads = t.ArrayXf(
-                [
+            T, S = list(T), list(S)
+            acc = [zero] * 9  # Σ over the strip: δu, δv, δa, δb, δc, δσ, δr, δg, δb
+            any_contrib = t.Bool(False)
+            for k in range(kp):
+                dx, dy, gauss, raw, alpha, contrib = _gaussian_alpha(m2, co, op, pxf, pyf[k], cfg)
+                contrib &= jj < last[k]
+                one_minus = 1.0 - alpha
+                T_i = T[k] / one_minus  # transmittance in front of entry jj
+                # δL/δα_i (see module docstring); clamped α has no gradient
+                dalpha = T_i * dr.dot(col - S[k], g_C[k]) + (T_N[k] / one_minus) * (g_A[k] - g_bg[k])
+                dalpha = dr.select(contrib & (raw < cfg.alpha_max), dalpha, 0.0)
+                dpower = dalpha * alpha  # α = σ G, G = exp(power)
+                dcol = dr.select(contrib, alpha * T_i, 0.0) * g_C[k]  # δL/δc_i = α_i T_i δL/δC
+                terms = (
                     -dpower * (co.x * dx + co.y * dy),  # δu
                     -dpower * (co.z * dy + co.y * dx),  # δv
                     -0.5 * dpower * dx * dx,  # δ conic a
                     -dpower * dx * dy,  # δ conic b
                     -0.5 * dpower * dy * dy,  # δ conic c
-                    dop, dcol.x, dcol.y, dcol.z, zero, zero, zero,
-                ]
-            )
-            dr.scatter_add(d_entry, grads, jj, contrib, mode=_SCATTER_MODE)
-            S = dr.select(contrib, col * alpha + one_minus * S, S)
-            T = dr.select(contrib, T_i, T)
-            return jj, T, S
+                    dalpha * gauss,  # δσ
+                    dcol.x, dcol.y, dcol.z,
+                )
+                acc = [a_ + b_ for a_, b_ in zip(acc, terms)]
+                any_contrib |= contrib
+                S[k] = dr.select(contrib, col * alpha + one_minus * S[k], S[k])
+                T[k] = dr.select(contrib, T_i, T[k])
+            grads = t.ArrayXf(acc + [zero] * (_GRAD - 9))
+            dr.scatter_add(d_entry, grads, jj, any_contrib, mode=_SCATTER_MODE)
+            return jj, tuple(T), tuple(S)
 
         dr.while_loop(
-            (t.UInt32(j0), t.Float(T_N), dr.zeros(t.Array3f, n_threads)),
+            (t.UInt32(j0), tuple(t.Float(x) for x in T_N), tuple(dr.zeros(t.Array3f, n) for _ in range(kp))),
             cond,
             body,
             label="splat_backward",
@@ -473,6 +515,10 @@ def render(gaussians: Gaussians, camera: Camera, cfg: RenderConfig) -> RenderOut
         raise RenderError(f"RenderConfig.background must have 3 entries, got {list(cfg.background)}")
     if cfg.tile_size <= 0:
         raise RenderError(f"RenderConfig.tile_size must be positive, got {cfg.tile_size}")
+    if cfg.pixels_per_thread <= 0 or cfg.tile_size % cfg.pixels_per_thread:
+        raise RenderError(
+            f"RenderConfig.pixels_per_thread ({cfg.pixels_per_thread}) must divide tile_size ({cfg.tile_size})"
+        )
     width, height = camera.width, camera.height
     bg = [float(x) for x in cfg.background]
     m = _check_sizes(gaussians)

@@ -39,17 +39,20 @@ def _camera(res: int):
     return Camera.look_at([0.5, -0.7, 0.8], [0.5, 0.5, 0.5], [0, 0, 1], 40, res, res)
 
 
-def _time(fn, repeats: int) -> tuple[float, float]:
-    """(first call ms, median of `repeats` later calls ms); fn must synchronise."""
+def _time(fn, repeats: int) -> tuple[float, float, float]:
+    """(first call ms, median wall ms, median process CPU ms) of `repeats` later calls; fn must
+    synchronise. CPU time sums all threads: on an otherwise idle 2-core machine with perfect
+    scaling, wall ≈ CPU / 2; under load from other processes the wall time grows, CPU not much."""
     t0 = time.perf_counter()
     fn()
     first = 1e3 * (time.perf_counter() - t0)
-    times = []
+    wall, cpu = [], []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        c0, t0 = time.process_time(), time.perf_counter()
         fn()
-        times.append(1e3 * (time.perf_counter() - t0))
-    return first, float(np.median(times))
+        wall.append(1e3 * (time.perf_counter() - t0))
+        cpu.append(1e3 * (time.process_time() - c0))
+    return first, float(np.median(wall)), float(np.median(cpu))
 
 
 def _ours(g, cam, cfg, backward: bool):
@@ -150,28 +153,34 @@ def run() -> dict:
     g10k, cam256 = _scene(10_000), _camera(256)
     g2k, cam128 = _scene(2_000, seed=1), _camera(128)
 
-    first, med = _time(_ours(g10k, cam256, cfg, backward=False), 15)
-    result.update(fwd_ms_256_10k=round(med, 2), fwd_compile_ms_256_10k=round(first - med, 1))
-    first, med = _time(_ours(g10k, cam256, cfg, backward=True), 15)
-    result.update(fwd_bwd_ms_256_10k=round(med, 2), fwd_bwd_compile_ms_256_10k=round(first - med, 1))
-    _, med = _time(_ours(g2k, cam128, cfg, backward=False), 15)
-    result.update(fwd_ms_128_2k=round(med, 2))
-    _, med = _time(_ours(g2k, cam128, cfg, backward=True), 15)
-    result.update(fwd_bwd_ms_128_2k=round(med, 2))
+    for key, (g, cam, backward) in {
+        "fwd_ms_256_10k": (g10k, cam256, False),
+        "fwd_bwd_ms_256_10k": (g10k, cam256, True),
+        "fwd_ms_128_2k": (g2k, cam128, False),
+        "fwd_bwd_ms_128_2k": (g2k, cam128, True),
+    }.items():
+        first, wall, cpu = _time(_ours(g, cam, cfg, backward), 15)
+        result[key] = round(wall, 2)
+        result[key.replace("_ms_", "_cpu_ms_")] = round(cpu, 2)
+        result[key.replace("_ms_", "_compile_ms_")] = round(first - wall, 1)
     print("render: ours done, timing Mitsuba", file=sys.stderr)
 
-    _, mi_fwd = _time(_mitsuba(g10k, cam256, backward=False), 5)
-    _, mi_bwd = _time(_mitsuba(g10k, cam256, backward=True), 5)
+    _, mi_fwd, mi_fwd_cpu = _time(_mitsuba(g10k, cam256, backward=False), 5)
+    _, mi_bwd, mi_bwd_cpu = _time(_mitsuba(g10k, cam256, backward=True), 5)
     result.update(
         mitsuba_fwd_ms_256_10k=round(mi_fwd, 2),
         mitsuba_fwd_bwd_ms_256_10k=round(mi_bwd, 2),
+        mitsuba_fwd_bwd_cpu_ms_256_10k=round(mi_bwd_cpu, 2),
         mitsuba_ratio=round(mi_bwd / result["fwd_bwd_ms_256_10k"], 2),
+        mitsuba_cpu_ratio=round(mi_bwd_cpu / result["fwd_bwd_cpu_ms_256_10k"], 2),
         mitsuba_fwd_ratio=round(mi_fwd / result["fwd_ms_256_10k"], 2),
     )
     print("render: timing the small static fit", file=sys.stderr)
+    c0 = time.process_time()
     seconds, held_out_psnr, iterations = _static_fit_small()
     result.update(
         static_fit_small_s=round(seconds, 1),
+        static_fit_small_cpu_s=round(time.process_time() - c0, 1),
         static_fit_small_iterations=iterations,
         static_fit_small_held_out_psnr=round(held_out_psnr, 2),
     )

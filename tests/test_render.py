@@ -57,6 +57,27 @@ def test_forward_matches_numpy_twin(rng, m, iso, size, opacity, bg):
     np.testing.assert_allclose(_np(out.alpha), alpha, atol=1e-4)
 
 
+@pytest.mark.parametrize("pixels_per_thread", [1, 2, 8, 16])
+def test_pixel_strip_widths_agree(rng, pixels_per_thread):
+    """Every strip width (pixels shaded per SIMD lane) gives the twin's image and the same
+    gradients as the default width."""
+    p = _scene(rng, 30, opacity=(2.0, 1.0), iso=True)
+    cam = _camera(40, 36)
+    cfg = RenderConfig(background=[0.2, 0.3, 0.1], pixels_per_thread=pixels_per_thread)
+    rgb, alpha = render_numpy(p, cam, cfg)
+    grads = []
+    for c in (cfg, RenderConfig(background=[0.2, 0.3, 0.1])):
+        g = Gaussians.from_numpy(**p)
+        dr.enable_grad(g.means, g.opacity_logits)
+        out = render(g, cam, c)
+        np.testing.assert_allclose(_np(out.rgb), rgb, atol=1e-4)
+        np.testing.assert_allclose(_np(out.alpha), alpha, atol=1e-4)
+        dr.backward(dr.sum(out.rgb * out.rgb, axis=None) + dr.sum(out.alpha, axis=None))
+        grads.append((_grad(g, "means"), _grad(g, "opacity_logits")))
+    for a, b in zip(*grads):
+        np.testing.assert_allclose(a, b, atol=1e-4 * np.abs(b).max())
+
+
 def test_early_termination_and_clamp_are_exercised(rng):
     """The dense scene really saturates pixels (otherwise the twin test proves less)."""
     p = _scene(rng, 40, opacity=(3.0, 0.5), iso=True)

@@ -194,8 +194,12 @@ def _first_greater(sorted_values, query, n: int):
     return lo
 
 
-def bin_gaussians(proj: Projected, width: int, height: int, cfg: RenderConfig) -> Bins:
-    """Phase 2: variable-length, depth-ordered tile lists (prefix sum + stable argsort)."""
+def bin_gaussians(proj: Projected, width: int, height: int, cfg: RenderConfig, checks=None) -> Bins:
+    """Phase 2: variable-length, depth-ordered tile lists (prefix sum + stable argsort).
+
+    checks: optional (arrays, fn): the arrays are evaluated in the same launch as the tile
+    counts and fn(arrays) runs before anything is allocated from those counts (used to reject
+    non-finite inputs without an extra synchronisation)."""
     t = ad()
     ts = int(cfg.tile_size)
     tiles_x, tiles_y = -(-width // ts), -(-height // ts)
@@ -212,7 +216,10 @@ def bin_gaussians(proj: Projected, width: int, height: int, cfg: RenderConfig) -
     w_rect = x1 - x0
     n = dr.select(r > 0, w_rect * (y1 - y0), 0)
     offsets = dr.cumsum(n)  # inclusive prefix sum, UInt32 [M]
-    dr.eval(offsets, x0, y0, w_rect)
+    extra, check = checks if checks is not None else ([], None)
+    dr.eval(offsets, x0, y0, w_rect, *extra)
+    if check is not None:
+        check(extra)
     total = int(offsets[m - 1]) if m > 0 else 0
     if total == 0:
         zeros = dr.zeros(t.UInt32, n_tiles)
@@ -476,26 +483,26 @@ class _Rasterize(dr.CustomOp):
 
 
 # ---------------------------------------------------------------------------- entry point
-def _check_finite(g: Gaussians):
-    """Raise RenderError naming the first Gaussians field holding NaN/inf (one reduction)."""
+_FIELDS = ("means", "log_scales", "rotations", "color_logits", "opacity_logits")
+
+
+def _nonfinite_counts(g: Gaussians) -> list:
+    """Per field, the number of Gaussians holding NaN/inf (lazy UInt32 arrays of width 1)."""
     t = ad()
-    fields = {
-        "means": g.means,
-        "log_scales": g.log_scales,
-        "rotations": g.rotations,
-        "color_logits": g.color_logits,
-        "opacity_logits": g.opacity_logits,
-    }
     counts = []
-    for value in fields.values():
-        v = dr.detach(value)
+    for name in _FIELDS:
+        v = dr.detach(getattr(g, name))
         comps = [v] if isinstance(v, t.Float) else [v[i] for i in range(len(v))]
         s = comps[0]
         for c in comps[1:]:
             s = s + c
         counts.append(dr.count(~dr.isfinite(s)))
-    dr.eval(*counts)
-    for (name, _), n in zip(fields.items(), counts):
+    return counts
+
+
+def _raise_nonfinite(counts: list) -> None:
+    """Raise RenderError naming the first field with non-finite entries (counts evaluated)."""
+    for name, n in zip(_FIELDS, counts):
         if int(n[0]) > 0:
             raise RenderError(f"render: Gaussians.{name} has {int(n[0])} non-finite entries (NaN or inf)")
 
@@ -528,11 +535,10 @@ def render(gaussians: Gaussians, camera: Camera, cfg: RenderConfig) -> RenderOut
     width, height = camera.width, camera.height
     bg = [float(x) for x in cfg.background]
     m = _check_sizes(gaussians)
-    if m > 0 and cfg.check_finite:
-        _check_finite(gaussians)
     if m > 0:
+        checks = (_nonfinite_counts(gaussians), _raise_nonfinite) if cfg.check_finite else None
         proj = project(gaussians, camera, cfg)
-        bins = bin_gaussians(proj, width, height, cfg)
+        bins = bin_gaussians(proj, width, height, cfg, checks)
     if m == 0 or bins.n_entries == 0:
         # nothing visible: background, alpha 0, attached to the inputs with zero gradients so a
         # caller's dr.backward stays well defined

@@ -11,9 +11,15 @@ class StaticFitConfig:
     s0: float = 0.01  # constant isotropic scale during the static fit, scene units
     iterations: int = 3000  # Adam steps
     views_per_step: int = 1  # views rendered per step
-    lr_position: float = 1e-3  # Adam learning rate, centres
+    lr_position: float = 1e-3  # Adam learning rate, centres (start of the exponential decay)
+    lr_position_final: float = 1e-5  # Adam learning rate, centres, at the last step
     lr_color: float = 2.5e-2  # Adam learning rate, colour logits
     lr_opacity: float = 5e-2  # Adam learning rate, opacity logits
+    init_opacity: float = 0.1  # initial opacity of every Gaussian (3DGS)
     lambda_dssim: float = 0.2  # λ in (1-λ) L1 + λ D-SSIM
+    lambda_mask: float = 0.0  # weight of the |alpha - mask| term (0: photometric loss only, as the paper)
     prune_opacity: float = 0.005  # Gaussians below this opacity are pruned
-    prune_every: int = 500  # steps between prunings
+    prune_every: int = 500  # steps between prunings (0: only at the end)
+    carve_grid: int = 48  # voxels per side when the box is carved from the masks
+    carve_extent: float = 0.5  # carving cube half-size, as a fraction of the mean camera distance
+    box_margin: float = 0.05  # relative padding of the carved box

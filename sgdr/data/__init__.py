@@ -1,0 +1,1 @@
+"""Sequences: sgdr's own folder format and readers for the Spring-Gaus and PAC-NeRF layouts."""

@@ -44,19 +44,22 @@ class SynthConfig:
     cfl: float = 0.3  # time step = cfl * dx / (elastic wave speed + max particle speed bound)
     substeps: int = 0  # MPM substeps per frame; 0 = the fewest the CFL bound allows
     hit_frame: int = 5  # the object first touches the ground during this frame
-    v0: list = field(default_factory=lambda: [0.25, 0.1, -0.5])  # initial velocity, units/s
+    v0: list = field(default_factory=lambda: [0.15, 0.05, -0.5])  # initial velocity, units/s
     wall_cells: int = 3  # grid cells at each side of the MPM domain acting as slip walls
     # --- surface and appearance
     surface_sigma: float = 0.9  # Gaussian kernel of the particle density, in surface cells
     surface_level: float = 0.5  # iso-level of the density relative to the interior density
     pattern_scale: float = 12.0  # spatial frequency of the colour pattern, 1 / scene unit
     # --- cameras and lights
-    camera_radius: float = 1.6  # distance of the cameras from the look-at target
+    camera_radius: float = 1.1  # distance of the cameras from the look-at target
     camera_fov: float = 40.0  # horizontal field of view, degrees
     camera_elevation: list = field(default_factory=lambda: [15.0, 60.0])  # min, max, degrees
-    camera_target: list = field(default_factory=lambda: [0.5, 0.5, 0.35])  # look-at point
+    camera_target: list = field(default_factory=lambda: [0.55, 0.52, 0.32])  # look-at point, world
     env_radiance: float = 0.35  # constant environment emitter radiance
     light_radiance: float = 12.0  # area light radiance
     light_size: float = 0.6  # area light side length, scene units
     light_height: float = 2.0  # area light height above the target
     max_depth: int = 4  # path tracer maximum path depth
+    # --- output
+    out: str = ""  # sequence folder; "" = <data_dir>/<object>; object "all" = the seven objects
+    overwrite: bool = False  # regenerate sequences that are already complete

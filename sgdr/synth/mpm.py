@@ -8,7 +8,8 @@ Method (Hu et al. 2018, "A moving least squares material point method", with API
 - P2G by atomic scatter-add (`dr.scatter_add`) of mass and APIC momentum
   m v + (m C - dt V 4/Δx² τ) (x_i - x_p), τ the Kirchhoff stress;
 - grid update: v = p / m, gravity, linear air drag, slip walls at the domain sides, and a
-  ground-plane collider (`sticky`, `slip`, Coulomb `friction` with coefficient μ);
+  ground-plane collider (`sticky`, `slip`, Coulomb `friction` with coefficient μ) on the
+  nodes less than Δx/2 above the plane;
 - G2P by gather: v_p = Σ w v_i, C_p = 4/Δx² Σ w v_i (x_i - x_p)ᵀ, x += dt v_p,
   F ← (I + dt C_p) F, then an optional von Mises return mapping (plastic yield).
 
@@ -282,10 +283,12 @@ def grid_update(model: MPMModel, params: MPMParams, grid_m, grid_p):
     for a in range(3):
         out = ((ijk[a] < lo) & (v[a] < 0)) | ((ijk[a] >= hi) & (v[a] > 0))
         v[a] = dr.select(out, 0.0, v[a])
-    # Ground plane: nodes below it get the collider's velocity.
+    # Ground plane: nodes in the contact band (less than half a cell above the plane; with
+    # the plane on a node layer, the nodes on and under it) get the collider's velocity.
+    # Particles then rest about half a cell above the plane instead of sinking into it.
     X = t.Array3f(*model.origin) + t.Array3f(ijk) * model.dx
     normal = t.Array3f(*model.ground_normal)
-    below = dr.dot(X - t.Array3f(*model.ground_point), normal) < 0
+    below = dr.dot(X - t.Array3f(*model.ground_point), normal) < 0.5 * model.dx
     vn = dr.dot(v, normal)
     v_contact = COLLIDERS[model.collider](v, normal, vn, model.friction)
     return dr.select(below & (grid_m > 0), v_contact, v)

@@ -47,8 +47,8 @@ class SynthConfig:
     v0: list = field(default_factory=lambda: [0.15, 0.05, -0.5])  # initial velocity, units/s
     wall_cells: int = 3  # grid cells at each side of the MPM domain acting as slip walls
     # --- surface and appearance
-    surface_sigma: float = 0.9  # Gaussian kernel of the particle density, in surface cells
-    surface_level: float = 0.5  # iso-level of the density relative to the interior density
+    surface_sigma: float = 0.6  # Gaussian kernel of the particle density, in surface cells
+    surface_level: float = 0.42  # iso-level of the density relative to the interior density
     pattern_scale: float = 12.0  # spatial frequency of the colour pattern, 1 / scene unit
     # --- cameras and lights
     camera_radius: float = 1.1  # distance of the cameras from the look-at target

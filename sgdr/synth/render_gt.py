@@ -119,7 +119,11 @@ def surface_mesh(x, rest_colours, particle_volume, cell, sigma_cells, level) -> 
     density = gaussian_filter(counts, sigma_cells, mode="constant") * (particle_volume / cell**3)
     verts, faces, normals, _ = marching_cubes(density, level, spacing=(cell, cell, cell))
     verts = verts + lo + 0.5 * cell  # histogram cell centres
-    # marching_cubes orients faces and normals towards decreasing density, i.e. outwards.
+    # Normals point towards decreasing density (outwards); make the winding agree with them
+    # (counter-clockwise seen from outside = positive signed volume).
+    v0, v1, v2 = (verts[faces[:, k]] - verts.mean(0) for k in range(3))
+    if np.einsum("ij,ij->", v0, np.cross(v1, v2)) < 0:
+        faces = faces[:, ::-1]
     _, nearest = cKDTree(x).query(verts)
     return SurfaceMesh(verts, faces.astype(np.int64), normals, np.asarray(rest_colours)[nearest])
 

@@ -183,3 +183,22 @@ def test_generated_alpha_matches_the_projected_particles(tiny_sequence):
             ys, xs = np.mgrid[0 : cam.height, 0 : cam.width] + 0.5
             centroid = np.array([(xs * alpha).sum(), (ys * alpha).sum()]) / alpha.sum()
             assert np.linalg.norm(centroid - uv.mean(0)) < 0.02 * cam.width  # pixels
+
+
+def test_generate_driver_writes_then_skips_a_complete_sequence(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    cmd = [sys.executable, str(root / "experiments" / "generate.py"), "preset=tiny", "synth.object=torus",
+           "synth.n_views=2", "synth.n_frames=6", "synth.n_fit=4", "synth.resolution=16",
+           f"data_dir={tmp_path}", f"hydra.run.dir={tmp_path / 'hydra'}"]  # fmt: skip
+    first = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stderr[-2000:]
+    from sgdr.data import load_sequence
+
+    seq = load_sequence(tmp_path / "torus")
+    assert (seq.n_views, seq.n_frames, seq.cameras[0].width) == (2, 6, 16)
+    second = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=600)
+    assert second.returncode == 0 and "complete, skipped" in second.stderr + second.stdout

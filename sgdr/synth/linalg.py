@@ -40,7 +40,7 @@ def sym_eig3(A, sweeps: int = 5):
             app, aqq = a[p][p] - t * apq, a[s_][s_] + t * apq
             arp, arq = a[r][p], a[r][s_]
             a[p][p], a[s_][s_] = app, aqq
-            a[p][s_] = a[s_][p] = dr.zeros_like(apq)
+            a[p][s_] = a[s_][p] = apq * 0.0  # (no width literal: safe under dr.freeze)
             a[r][p] = a[p][r] = c * arp - s * arq
             a[r][s_] = a[s_][r] = s * arp + c * arq
             for k in range(3):

@@ -100,11 +100,16 @@ class MPMState:
 
     @staticmethod
     def at_rest(x: np.ndarray, v0) -> "MPMState":
-        """Undeformed particles at x [P, 3] moving with the common velocity v0 (3,)."""
+        """Undeformed particles at x [P, 3] moving with the common velocity v0.
+
+        v0: three numbers, or an Array3f [1] (keeps its gradient: d/dv0 flows into v).
+        """
         t = ad()
         n = len(x)
         X = t.Array3f(np.ascontiguousarray(np.asarray(x, dtype=np.float32).T))
-        V = t.Array3f(*[float(c) for c in v0]) + dr.zeros(t.Array3f, n)
+        if not isinstance(v0, t.Array3f):
+            v0 = t.Array3f(*[float(c) for c in v0])
+        V = v0 + dr.zeros(t.Array3f, n)
         C = dr.zeros(t.Matrix3f, n)
         F = dr.identity(t.Matrix3f, n)
         return MPMState(X, V, C, F)

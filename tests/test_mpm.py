@@ -2,7 +2,6 @@
 
 from functools import lru_cache
 
-import drjit as dr
 import numpy as np
 import pytest
 from scipy.linalg import polar

@@ -320,8 +320,8 @@ def rollout(
     (default physics.n_substeps). grad_mode (default physics.grad_mode): "full" | "truncated".
 
     With physics.retry_on_nan, too few substeps for the stability bound are doubled up front,
-    and a frame that produces NaN/inf is re-run with twice the substeps (the official remedy),
-    up to physics.max_substeps; the raised count is kept for the following frames."""
+    and a rollout that produces NaN/inf starts again from state0 with twice the substeps (the
+    official remedy), up to physics.max_substeps."""
     enter: Callable = GRAD_MODES.get_named(grad_mode or cfg.grad_mode, "grad_mode")
     n_sub = int(n_substeps or cfg.n_substeps)
     if n_frames < 1:
@@ -330,15 +330,14 @@ def rollout(
         need = stable_substeps(model, params, dt_frame, cfg)
         while n_sub < need and n_sub * 2 <= cfg.max_substeps:
             n_sub *= 2
-    states = [state0]
-    for f in range(1, n_frames):
-        start = states[-1] if f == 1 else enter(states[-1])
-        while True:
-            try:
+    while True:
+        try:
+            states = [state0]
+            for f in range(1, n_frames):
+                start = states[-1] if f == 1 else enter(states[-1])
                 states.append(simulate_frame(model, params, start, ground, dt_frame, n_sub, cfg))
-                break
-            except SimulationUnstable:
-                if not cfg.retry_on_nan or n_sub * 2 > cfg.max_substeps:
-                    raise
-                n_sub *= 2
-    return states
+            return states
+        except SimulationUnstable:
+            if not cfg.retry_on_nan or n_sub * 2 > cfg.max_substeps:
+                raise
+            n_sub *= 2  # the official remedy: start again with twice the substeps

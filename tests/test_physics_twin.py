@@ -135,3 +135,27 @@ def test_gradients_match_finite_differences(law, springs, contact, mode):
         assert abs(fd) > 5e-4, (name, fd)  # the scene makes every parameter matter
         assert np.sign(ad) == np.sign(fd), (name, ad, fd)
         assert abs(ad - fd) <= 1e-3 * abs(fd), (name, ad, fd)  # float32 AD vs float64 FD
+
+
+# the printed (unnormalised) form cuts every spring past n_c at κ >= 0, so it is checked at κ < 0
+@pytest.mark.parametrize("kappa,normalised", [(0.0, True), (-1.0, True), (0.7, True), (-1.0, False), (-2.5, False)])
+def test_soft_vector_and_its_kappa_gradient(kappa, normalised):
+    """η_j (Eq. 15) against the twin, and dη/dκ against central differences, at the default κ = 0
+    too (a max/abs softplus has a zero derivative there)."""
+    from sgdr.backend import ad
+    from sgdr.physics.laws import soft_vector_eta, soft_vector_exponent, softplus
+
+    t = ad()
+    n_k, n_c = 24, 6
+    k = t.Float(kappa)
+    dr.enable_grad(k)
+    eta = soft_vector_eta(softplus(k), soft_vector_exponent(dr.arange(t.Float, n_k), n_k, n_c, normalised))
+    ref = R.soft_vector(kappa, n_k, n_c, normalised)
+    assert np.abs(eta.numpy() - ref).max() < 1e-6
+    interior = (ref > 1e-3) & (ref < 1 - 1e-9)  # away from the clamp, where η is smooth in κ
+    assert interior.sum() >= 1
+    dr.backward(dr.sum(dr.select(t.Bool(interior), eta, 0.0)))
+    h = 1e-6
+    fd = (R.soft_vector(kappa + h, n_k, n_c, normalised)[interior].sum()
+          - R.soft_vector(kappa - h, n_k, n_c, normalised)[interior].sum()) / (2 * h)
+    assert fd < 0 and abs(dr.grad(k).numpy()[0] - fd) <= 1e-4 * abs(fd) + 1e-6

@@ -90,7 +90,9 @@ def stiffness_arithmetic(k_i, k_j):
 
 
 def softplus(a):
-    return dr.maximum(a, 0.0) + dr.log(1.0 + dr.exp(-dr.abs(a)))
+    """log(1 + e^a), smooth everywhere (its derivative at 0 is 1/2: κ = 0 is the default, so
+    no max/abs kinks here), = a above 20 where log1p(e^a) - a underflows in float32."""
+    return dr.select(a > 20.0, a, dr.log(1.0 + dr.exp(dr.minimum(a, 20.0))))
 
 
 def soft_vector_exponent(rank, n_k: int, n_c: int, normalised: bool):

@@ -7,7 +7,7 @@ Measures, on the active Dr.Jit backend (LLVM by default):
   the timed calls, plus the kernels' own execution time from Dr.Jit's kernel history;
 - the float64 NumPy twin (sgdr/physics/reference.py) on the same systems in the same run,
   and the ratio;
-- gradient cost over forward cost: a `full`-mode rollout (3 frames x 100 substeps) with AD
+- gradient cost over forward cost: a `full`-mode rollout (2 frames x 100 substeps) with AD
   recording plus `dr.backward`, over the plain forward of the same rollout;
 - peak memory of a 20-frame x 100-substep `full` gradient at paper scale, measured in a fresh
   child process as its peak resident set size (`resource.getrusage(RUSAGE_SELF).ru_maxrss`),
@@ -155,14 +155,14 @@ def run() -> dict:
     b = backend.init("llvm") if backend._current is None else backend.current()
     log = lambda msg: print(f"[bench sim] {msg}", file=sys.stderr, flush=True)  # noqa: E731
     log("forward 2048 x 256")
-    big = _forward(2048, 256, reps=5)
+    big = _forward(2048, 256, reps=3)
     log("forward 512 x 64")
     small = _forward(512, 64, reps=5)
     log("numpy twin")
     np_big = _numpy_twin(2048, 256, n_steps=3)
     np_small = _numpy_twin(512, 64, n_steps=5)
-    log("gradient / forward (3 frames x 100 substeps, full)")
-    grad = _gradient_ratio(2048, 256, n_frames=3)
+    log("gradient / forward (2 frames x 100 substeps, full)")
+    grad = _gradient_ratio(2048, 256, n_frames=2)
     log("peak memory (20 frames x 100 substeps, full, child process)")
     mem = _peak_memory(2048, 256, n_frames=20)
     return {

@@ -8,7 +8,8 @@ Measures, on the active Dr.Jit backend (LLVM by default):
 - the float64 NumPy twin (sgdr/physics/reference.py) on the same systems in the same run,
   and the ratio;
 - gradient cost over forward cost: a `full`-mode rollout (2 frames x 100 substeps) with AD
-  recording plus `dr.backward`, over the plain forward of the same rollout;
+  recording plus `dr.backward` and the evaluation of the gradient, over the plain forward of the
+  same rollout (after one warm-up of each, so kernel compilation is not counted);
 - peak memory of a 20-frame x 100-substep `full` gradient at paper scale, measured in a fresh
   child process as its peak resident set size (`resource.getrusage(RUSAGE_SELF).ru_maxrss`),
   with the child's RSS before the rollout reported next to it.
@@ -60,7 +61,8 @@ def _forward(n_anchors: int, n_k: int, reps: int) -> dict:
         dr.kernel_history_clear() if hasattr(dr, "kernel_history_clear") else dr.kernel_history()
         dr.set_flag(dr.JitFlag.KernelHistory, True)
         t0 = time.perf_counter()
-        simulate_frame(model, params, state, ground, 1 / FPS, N_SUB, cfg)
+        simulate_frame(model, params, state, ground, 1 / FPS, N_SUB, cfg)  # ends reading a result
+        dr.sync_thread()
         walls.append(time.perf_counter() - t0)
         history = dr.kernel_history()
         dr.set_flag(dr.JitFlag.KernelHistory, False)
@@ -101,6 +103,7 @@ def _gradient_ratio(n_anchors: int, n_k: int, n_frames: int) -> dict:
         t0 = time.perf_counter()
         states = rollout(model, p, SimState.at_rest(model, p.v0), ground, n_frames + 1, 1 / FPS, cfg,
                          grad_mode="full", n_substeps=N_SUB)
+        dr.sync_thread()
         t1 = time.perf_counter()
         if grad:
             loss = 0.0
@@ -108,13 +111,13 @@ def _gradient_ratio(n_anchors: int, n_k: int, n_frames: int) -> dict:
                 loss = loss + dr.sum(dr.squared_norm(s.x))
             dr.backward(loss)
             dr.eval(dr.grad(p.log10_k))
+        dr.sync_thread()  # LLVM kernels run asynchronously: wait before reading the clock
         t2 = time.perf_counter()
         return t1 - t0, t2 - t1
 
-    run(False), run(True)  # warm-up both
-    fwd = statistics.median(run(False)[0] for _ in range(2))
-    rec, bwd = zip(*(run(True) for _ in range(2)))
-    rec, bwd = statistics.median(rec), statistics.median(bwd)
+    run(False), run(True)  # warm-up both (the backward's kernels compile here)
+    fwd = statistics.median(run(False)[0] for _ in range(3))
+    rec, bwd = run(True)
     return {"forward_s": fwd, "forward_recording_s": rec, "backward_s": bwd, "grad_over_forward": (rec + bwd) / fwd}
 
 
@@ -134,7 +137,7 @@ def peak_memory_child(n_anchors: int, n_k: int, n_frames: int) -> dict:
     for s in states[1:]:
         loss = loss + dr.sum(dr.squared_norm(s.x))
     dr.backward(loss)
-    g = np.asarray(dr.grad(params.log10_k).numpy())
+    g = np.asarray(dr.grad(params.log10_k).numpy())  # reading it runs the backward kernels
     return {"peak_rss_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
             "rss_before_gib": rss_before, "seconds": time.perf_counter() - t0, "grad_finite": bool(np.isfinite(g).all())}
 

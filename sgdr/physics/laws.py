@@ -36,7 +36,7 @@ class Registry(dict):
 
 # --------------------------------------------------------------------------------------------
 # Spring laws (Eq. 8): F_k = -η_j k_ij g(Δl) d̂ with Δl = |x_i - x_j| - l_ij.
-# Each returns g(Δl) (scene units), so that k_ij g(Δl) is a force.
+# Each takes (Δl, 1 / l_ij, p_k, eps) and returns g(Δl) (scene units): k_ij g(Δl) is a force.
 # --------------------------------------------------------------------------------------------
 SPRING_LAWS = Registry("spring law")
 
@@ -53,15 +53,15 @@ def _pow(a, p: float):
 
 
 @SPRING_LAWS.register("paper")
-def law_paper(dl, l, p_k: float, eps: float):
+def law_paper(dl, inv_l, p_k: float, eps: float):
     """Eq. 8 as printed: g = Δl |Δl|^p_k (|Δl| floored at eps so the gradient stays finite)."""
     return dl * _pow(dr.maximum(dr.abs(dl), eps), p_k)
 
 
 @SPRING_LAWS.register("official")
-def law_official(dl, l, p_k: float, eps: float):
+def law_official(dl, inv_l, p_k: float, eps: float):
     """Official code: g = Δl (1 + |Δl| / l_ij)^p_k, i.e. Hookean times (1 + |strain|)^p_k."""
-    return dl * _pow(1.0 + dr.abs(dl) / l, p_k)
+    return dl * _pow(1.0 + dr.abs(dl) * inv_l, p_k)
 
 
 # --------------------------------------------------------------------------------------------

@@ -26,17 +26,25 @@ Gradients (how the loop is differentiated)
 ------------------------------------------
 Recorded AD. Each substep is one AD node around the sum loop: Dr.Jit differentiates a
 `max_iterations=-1` loop by re-running its body in the backward pass, so the per-spring
-intermediates (N_A x n_k per substep) are never stored; what the tape keeps per substep is
-O(N_A): the substep's inputs x, v (and the few per-anchor temporaries of the update and contact),
-a few dozen bytes per anchor. Memory of a `full` gradient is therefore
-O(n_frames x n_t x N_A), measured (evaluation/bench_sim.py, README "Simulator") at paper scale
-(2048 anchors x 256 springs, 20 frames x 100 substeps) well under the 4 GiB bar, so neither
-per-frame checkpointing (recompute a frame inside the backward) nor a hand-written adjoint is
-needed for memory. `truncated` (official) starts every frame after the first from the detached
-previous state, so each frame's tape is independent: the gradient is
-Σ_f ∂L/∂x_f · ∂Φ(θ, stop_grad(x_{f-1}))/∂θ, and frame 1 still starts from `state0` as given,
-so v0 receives the gradient of the first frame. The known cost is the backward's atomic
-scatter-adds (each gather of x_j / k_j becomes an atomic add into its adjoint).
+intermediates (N_A x n_k per substep) are never stored. The tape keeps O(N_A) per substep:
+at most x and v (24 bytes per anchor and substep; tests/test_physics_memory.py measures a
+marginal 12 B on the LLVM backend), independent of n_k. A `full` gradient therefore costs
+<= n_frames x n_t x N_A x 24 B: 98 MB at paper scale for 20 frames x 100 substeps (295 MB at
+30 x 200); the process peak is measured by evaluation/bench_sim.py (README "Simulator"),
+far under the 4 GiB bar. So neither per-frame checkpointing (recompute a frame inside the
+backward) nor a hand-written adjoint is needed for memory.
+
+`truncated` (official) starts every frame after the first from the detached previous state:
+the gradient is Σ_f ∂L/∂x_f · ∂Φ(θ, stop_grad(x_{f-1}))/∂θ, and frame 1 still starts from
+`state0` as given, so v0 receives the gradient of the first frame. Its tape is the same size
+as long as the loss over all frames is built before `dr.backward` (as the pipeline does).
+
+Cost: the backward is the weak point. Dr.Jit replays the loop body several times per substep
+in reverse (about 7-8 loop kernels per substep at 2048 x 256, one per differentiable input it
+reads), each with atomic scatter-adds for the gathers of x_j, v_j (and k_j); measured it is
+roughly 20x the forward (README "Simulator"). The lever is a hand-written, gather-only
+adjoint per substep (a `dr.CustomOp` whose backward loops over each anchor's outgoing and
+incoming springs, the `in_spring` lists, and accumulates without atomics).
 """
 
 from __future__ import annotations
@@ -75,10 +83,12 @@ def _pair_force(xa, xb, va, vb, l, k_s, eta, zeta0, law, cfg: PhysicsConfig):
 
     k_s: stiffness of the spring before the 1 / l_ij of Eq. 16; eta: soft-vector weight."""
     d = xa - xb
-    length = dr.sqrt(dr.maximum(dr.squared_norm(d), cfg.min_length * cfg.min_length))
-    d_hat = d / length
-    g = law(length - l, l, cfg.p_k, cfg.min_length)
-    return (-(k_s * eta * g + zeta0 * dr.dot(va - vb, d_hat)) / l) * d_hat
+    inv_length = dr.rsqrt(dr.maximum(dr.squared_norm(d), cfg.min_length * cfg.min_length))
+    length = dr.squared_norm(d) * inv_length
+    inv_l = dr.rcp(l)
+    g = law(length - l, inv_l, cfg.p_k, cfg.min_length)
+    # one division per spring: F = -(k_s η g + ζ0 (v_a - v_b)·d̂) / l · d̂,  d̂ = d / |d|
+    return (-(k_s * eta * g + zeta0 * dr.dot(va - vb, d) * inv_length) * inv_l * inv_length) * d
 
 
 SPRINGS = Registry("springs variant")

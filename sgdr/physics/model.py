@@ -181,7 +181,7 @@ class PhysParams:
         t = ad()
         v0 = _vec3("v0", v0)
         gravity = _vec3("gravity", gravity)
-        return PhysParams(
+        params = PhysParams(
             log10_k=dr.full(t.Float, float(cfg.log10_k_init), model.n_anchors),
             kappa=t.Float(float(cfg.kappa_init)),
             v0=t.Array3f(*map(float, v0)),
@@ -190,6 +190,10 @@ class PhysParams:
             zeta0=t.Float(float(cfg.zeta0)),
             gravity=t.Array3f(*map(float, gravity)),
         )
+        # memory-backed, not literals: a literal is baked into the kernels, so changing its
+        # value (an optimiser step) would recompile them
+        dr.make_opaque(params)
+        return params
 
     def detach(self) -> "PhysParams":
         return PhysParams(**{f: dr.detach(getattr(self, f)) for f in self.__dataclass_fields__})

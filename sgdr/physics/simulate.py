@@ -198,8 +198,8 @@ def effective_stiffness(model: SpringModel, params: PhysParams, cfg: PhysicsConf
     j, l = host["spring_j"], host["spring_rest_length"]
     if cfg.springs == "directed":
         return k * (eta[None, :] / l).sum(axis=1)
-    combine = {"harmonic": lambda a, b: 2 * a * b / (a + b), "arithmetic": lambda a, b: 0.5 * (a + b)}
-    k_s = combine.get(cfg.symmetric_stiffness, combine["harmonic"])(k[:, None], k[j]) * eta[None, :] / l
+    combine = SYMMETRIC_STIFFNESS.get_named(cfg.symmetric_stiffness, "physics.symmetric_stiffness")
+    k_s = combine(k[:, None], k[j]) * eta[None, :] / l  # the registry's functions work on NumPy too
     return k_s.sum(axis=1) + np.bincount(j.reshape(-1), weights=k_s.reshape(-1), minlength=model.n_anchors)
 
 
@@ -265,7 +265,7 @@ def _frame_constants(model: SpringModel, params: PhysParams, ground: Ground):
         "inv_m": dr.rcp(model.particle_mass),  # [N_A]
         "point": t.Array3f(*map(float, ground.point)),
         "normal": t.Array3f(*map(float, ground.normal)),
-        "g_norm": float(np.linalg.norm(dr.detach(params.gravity).numpy())),
+        "g_norm": dr.opaque(t.Float, float(np.linalg.norm(dr.detach(params.gravity).numpy()))),
     }
 
 

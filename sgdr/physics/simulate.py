@@ -39,10 +39,10 @@ the gradient is Σ_f ∂L/∂x_f · ∂Φ(θ, stop_grad(x_{f-1}))/∂θ, and fra
 `state0` as given, so v0 receives the gradient of the first frame. Its tape is the same size
 as long as the loss over all frames is built before `dr.backward` (as the pipeline does).
 
-Cost: the backward is the weak point. Dr.Jit replays the loop body several times per substep
-in reverse (about 7-8 loop kernels per substep at 2048 x 256, one per differentiable input it
-reads), each with atomic scatter-adds for the gathers of x_j, v_j (and k_j); measured it is
-roughly 20x the forward (README "Simulator"). The lever is a hand-written, gather-only
+Cost: the backward is the weak point. Dr.Jit runs 7-8 loop-sized reverse kernels per substep
+at 2048 x 256 (apparently one replay per differentiable input the loop reads), each with
+atomic scatter-adds for the gathers of x_j, v_j (and k_j); measured, gradient / forward is
+about 15-20 (README "Simulator"). The lever is a hand-written, gather-only
 adjoint per substep (a `dr.CustomOp` whose backward loops over each anchor's outgoing and
 incoming springs, the `in_spring` lists, and accumulates without atomics).
 """

@@ -22,6 +22,11 @@ test:
 bench:
 	$(PYTHON) -m evaluation.bench $(BENCH)
 
+# The 7-object benchmark at the small preset (128x128, 10 views, 30 frames) into data/;
+# complete sequences are skipped.
+data:
+	$(PYTHON) experiments/generate.py preset=$(PRESET) synth.object=all data_dir=data
+
 # Coulomb contact with restitution: on the small torus it predicts the future far better than
 # the official per-substep projection (README, "Measured on the small torus").
 demo:

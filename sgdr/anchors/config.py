@@ -14,3 +14,4 @@ class AnchorConfig:
     n_b: int = 16  # anchors bound to each Gaussian (Eq. 14)
     p_b: float = 0.5  # IDW weight exponent: w = 1 / d^p_b (Eq. 14)
     binding: str = "official"  # "official" (weighted anchor positions) | "displacement"
+    min_distance: float = 1.0e-8  # scene units; IDW distances are floored here (a Gaussian on an anchor)

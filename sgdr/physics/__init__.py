@@ -1,2 +1,46 @@
 """Spring-mass simulator (Eqs. 5-17 of the seed paper): model, parameters, state, forces,
-contact, semi-implicit Euler, rollouts and their gradients."""
+contact, semi-implicit Euler, rollouts and their gradients.
+
+- `model`: `SpringModel` (static), `PhysParams` (learnable), `SimState` (evolving), `Ground`,
+  `build_spring_model`.
+- `laws`: the named variants (spring law, symmetric stiffness, soft vector, contact).
+- `simulate`: spring forces, `substep`, `simulate_frame`, `rollout`, stability checks, and how
+  the rollout is differentiated (module docstring).
+- `reference`: the float64 NumPy twin, for tests and benchmarks only.
+"""
+
+from sgdr.physics.config import PhysicsConfig
+from sgdr.physics.model import (
+    Ground,
+    PhysicsInputError,
+    PhysParams,
+    SimState,
+    SpringModel,
+    build_spring_model,
+    with_masses,
+)
+from sgdr.physics.simulate import (
+    SimulationUnstable,
+    effective_stiffness,
+    rollout,
+    simulate_frame,
+    stable_substeps,
+    substep,
+)
+
+__all__ = [
+    "Ground",
+    "PhysParams",
+    "PhysicsConfig",
+    "PhysicsInputError",
+    "SimState",
+    "SimulationUnstable",
+    "SpringModel",
+    "build_spring_model",
+    "effective_stiffness",
+    "rollout",
+    "simulate_frame",
+    "stable_substeps",
+    "substep",
+    "with_masses",
+]

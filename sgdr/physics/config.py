@@ -1,4 +1,9 @@
-"""Typed config schema of the spring-mass simulator (Hydra group key `physics`)."""
+"""Typed config schema of the spring-mass simulator (Hydra group key `physics`).
+
+Variant names (`spring_law`, `springs`, `symmetric_stiffness`, `contact`, `grad_mode`) are
+looked up in the registries of `sgdr.physics.laws` / `sgdr.physics.simulate`; an unknown name
+raises an error that lists the known ones.
+"""
 
 from __future__ import annotations
 
@@ -9,11 +14,14 @@ from dataclasses import dataclass
 class PhysicsConfig:
     spring_law: str = "official"  # "official": (1+|strain|)^p_k factor; "paper": |Δl|^p_k (Eq. 8)
     springs: str = "directed"  # "directed" (official, force on i uses k_i) | "symmetric" (Newton 3)
+    symmetric_stiffness: str = "harmonic"  # k of a symmetric spring from k_i, k_j: "harmonic" | "arithmetic"
     soft_vector_normalised: bool = True  # official: exponent (j - n_c) / (n_k - n_c) in Eq. 15
     contact: str = "project"  # "project" (official, per-substep μ) | "coulomb" (restitution e, μ)
+    rest_speed_factor: float = 2.0  # "coulomb": approach speeds below this x |g| dt are resting contact (no bounce)
     n_substeps: int = 100  # n_t, semi-implicit Euler substeps per frame
     max_substeps: int = 400  # upper limit when retrying an unstable rollout with more substeps
-    retry_on_nan: bool = True  # the official remedy: rerun with more substeps after NaN
+    retry_on_nan: bool = True  # the official remedy: rerun a frame with 2x substeps after NaN
+    cfl_factor: float = 1.4  # stability bound checked before running: dt <= cfl_factor * sqrt(m / k_eff)
     grad_mode: str = "truncated"  # "full" (through all frames) | "truncated" (per frame, detached)
     m0: float = 1.0  # anchor mass m_i = m0
     zeta0: float = 0.1  # ζ0, damping coefficient (ζ_ij = ζ0 / l_ij, Eq. 17)
@@ -23,3 +31,4 @@ class PhysicsConfig:
     kappa_init: float = 0.0  # initial soft-vector κ
     friction_init: float = 0.9  # μ: "project": tangential factor per substep; "coulomb": coefficient
     restitution_init: float = 0.0  # e in [0, 1] ("coulomb" contact only)
+    min_length: float = 1.0e-9  # scene units; guards |x_i - x_j| and |Δl| against 0 (NaN gradients)

@@ -6,6 +6,22 @@ from dataclasses import dataclass, field
 
 
 @dataclass
+class EffectsConfig:
+    """Effects the spring-mass model lacks, injected into the MPM ground truth.
+
+    Every entry's default is "off" (the plain elastic benchmark); the values used are written
+    to `gt/effects.json`. The ground type (sticky / slip / friction, the "slippery vs sticky
+    ground" effect) is `SynthConfig.ground`, recorded there too.
+    """
+
+    plastic_yield: float = 0.0  # von Mises yield stress on the Hencky Kirchhoff stress, Pa; 0 = elastic
+    air_drag: float = 0.0  # linear air drag rate c (dv/dt = -c v), 1/s; 0 = none
+    stiff_ratio: float = 1.0  # E of the second region / E of the first; 1 = homogeneous
+    stiff_axis: int = 0  # world axis (0 x, 1 y, 2 z) whose upper half of the object is region 2
+    gravity: float = 9.8  # magnitude of gravity, scene units / s² (direction -z)
+
+
+@dataclass
 class SynthConfig:
     object: str = "torus"  # torus | cross | cream | apple | paste | chess | banana
     resolution: int = 128  # image width = height, pixels
@@ -14,12 +30,36 @@ class SynthConfig:
     n_fit: int = 20  # frames 0..n_fit-1 are for fitting, the rest are the future
     fps: float = 24.0  # frames per second
     spp: int = 64  # Mitsuba samples per pixel
-    mpm_grid: int = 64  # MPM grid cells per unit-cube side
+    mpm_grid: int = 64  # MPM grid cells per scene unit (the grid spans a unit cube)
     particles_per_cell: int = 8  # MPM particle sampling density
-    E: float = 2.0e4  # Young's modulus
+    E: float = 2.0e4  # Young's modulus, Pa
     nu: float = 0.3  # Poisson ratio
     density: float = 1.0e3  # kg / scene unit³
     ground: str = "friction"  # MPM collider: sticky | slip | friction
     ground_friction: float = 0.5  # Coulomb μ for the "friction" collider
-    surface_grid: int = 96  # density grid for marching cubes
-    effects: dict = field(default_factory=dict)  # injected effects, name -> magnitude
+    surface_grid: int = 96  # density grid for marching cubes (cells per scene unit)
+    effects: EffectsConfig = field(default_factory=EffectsConfig)  # injected effects
+    # --- simulation
+    material: str = "neo_hookean"  # constitutive law: neo_hookean | fixed_corotated
+    cfl: float = 0.3  # time step = cfl * dx / (elastic wave speed + max particle speed bound)
+    substeps: int = 0  # MPM substeps per frame; 0 = the fewest the CFL bound allows
+    hit_frame: int = 5  # the object first touches the ground during this frame
+    v0: list = field(default_factory=lambda: [0.15, 0.05, -0.5])  # initial velocity, units/s
+    wall_cells: int = 3  # grid cells at each side of the MPM domain acting as slip walls
+    # --- surface and appearance
+    surface_sigma: float = 0.6  # Gaussian kernel of the particle density, in surface cells
+    surface_level: float = 0.42  # iso-level of the density relative to the interior density
+    pattern_scale: float = 12.0  # spatial frequency of the colour pattern, 1 / scene unit
+    # --- cameras and lights
+    camera_radius: float = 1.1  # distance of the cameras from the look-at target
+    camera_fov: float = 40.0  # horizontal field of view, degrees
+    camera_elevation: list = field(default_factory=lambda: [15.0, 60.0])  # min, max, degrees
+    camera_target: list = field(default_factory=lambda: [0.55, 0.52, 0.32])  # look-at point, world
+    env_radiance: float = 0.35  # constant environment emitter radiance
+    light_radiance: float = 12.0  # area light radiance
+    light_size: float = 0.6  # area light side length, scene units
+    light_height: float = 2.0  # area light height above the target
+    max_depth: int = 4  # path tracer maximum path depth
+    # --- output
+    out: str = ""  # sequence folder; "" = <data_dir>/<object>; object "all" = the seven objects
+    overwrite: bool = False  # regenerate sequences that are already complete

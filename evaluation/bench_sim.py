@@ -1,0 +1,191 @@
+"""Simulator benchmark: `python -m evaluation.bench sim` (or `make bench BENCH=sim`).
+
+Measures, on the active Dr.Jit backend (LLVM by default):
+- forward spring-steps per second (anchors x springs x substeps / s) at paper scale
+  (2048 x 256) and at 512 x 64: one frame of 100 substeps, after a warm-up call whose time
+  (tracing + compilation, or kernel-cache load) is reported separately; median wall time of
+  the timed calls, plus the kernels' own execution time from Dr.Jit's kernel history;
+- the float64 NumPy twin (sgdr/physics/reference.py) on the same systems in the same run,
+  and the ratio;
+- gradient cost over forward cost: a `full`-mode rollout (2 frames x 100 substeps) with AD
+  recording plus `dr.backward` and the evaluation of the gradient, over the plain forward of the
+  same rollout (after one warm-up of each, so kernel compilation is not counted);
+- peak memory of a 20-frame x 100-substep `full` gradient at paper scale, measured in a fresh
+  child process as its peak resident set size (`resource.getrusage(RUSAGE_SELF).ru_maxrss`),
+  with the child's RSS before the rollout reported next to it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+FPS = 30.0
+N_SUB = 100
+SEED = 0
+
+
+def _system(n_anchors: int, n_k: int, **cfg_overrides):
+    import sgdr.backend as backend
+
+    backend.init("llvm") if backend._current is None else None
+    from sgdr.physics import Ground, PhysicsConfig, PhysParams, SimState, build_spring_model
+
+    rng = np.random.default_rng(SEED)
+    x_rest = rng.uniform(0.3, 0.7, (n_anchors, 3))
+    cfg = PhysicsConfig(**cfg_overrides)
+    model = build_spring_model(x_rest, n_k, cfg)
+    params = PhysParams.init(model, cfg, v0=(0.2, 0.0, -1.0))
+    ground = Ground([0.0, 0.0, 0.28], [0.0, 0.0, 1.0])
+    return cfg, model, params, SimState.at_rest(model, params.v0), ground
+
+
+def _forward(n_anchors: int, n_k: int, reps: int) -> dict:
+    import drjit as dr
+
+    from sgdr.physics import simulate_frame
+
+    cfg, model, params, state, ground = _system(n_anchors, n_k)
+    t0 = time.perf_counter()
+    simulate_frame(model, params, state, ground, 1 / FPS, N_SUB, cfg)  # warm-up: trace + compile
+    first = time.perf_counter() - t0
+    walls, kernels = [], []
+    for _ in range(reps):
+        dr.kernel_history_clear() if hasattr(dr, "kernel_history_clear") else dr.kernel_history()
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        t0 = time.perf_counter()
+        simulate_frame(model, params, state, ground, 1 / FPS, N_SUB, cfg)  # ends reading a result
+        dr.sync_thread()
+        walls.append(time.perf_counter() - t0)
+        history = dr.kernel_history()
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+        kernels.append(sum(k.get("execution_time", 0.0) for k in history) / 1e3)  # ms -> s
+    work = n_anchors * n_k * N_SUB
+    wall, kernel = statistics.median(walls), statistics.median(kernels)
+    return {"steps_per_s": work / wall, "kernel_steps_per_s": work / kernel, "first_call_s": first,
+            "wall_s": wall, "kernel_s": kernel}
+
+
+def _numpy_twin(n_anchors: int, n_k: int, n_steps: int) -> float:
+    """Spring-steps per second of the float64 NumPy twin (median over single substeps)."""
+    from sgdr.physics import reference as R
+
+    cfg, model, params, state, ground = _system(n_anchors, n_k)
+    m, p = R.model_numpy(model), R.params_numpy(params)
+    x, v = state.numpy()
+    dt = 1 / (FPS * N_SUB)
+    times = []
+    for _ in range(n_steps + 1):
+        t0 = time.perf_counter()
+        x, v = R.substep(m, p, x, v, ground, dt, cfg)
+        times.append(time.perf_counter() - t0)
+    return n_anchors * n_k / statistics.median(times[1:])
+
+
+def _gradient_ratio(n_anchors: int, n_k: int, n_frames: int) -> dict:
+    import drjit as dr
+
+    from sgdr.physics import SimState, rollout
+
+    cfg, model, params, state, ground = _system(n_anchors, n_k)
+
+    def run(grad: bool):
+        p = params.detach()
+        if grad:
+            dr.enable_grad(p)
+        t0 = time.perf_counter()
+        states = rollout(model, p, SimState.at_rest(model, p.v0), ground, n_frames + 1, 1 / FPS, cfg,
+                         grad_mode="full", n_substeps=N_SUB)
+        dr.sync_thread()
+        t1 = time.perf_counter()
+        if grad:
+            loss = 0.0
+            for s in states[1:]:
+                loss = loss + dr.sum(dr.squared_norm(s.x))
+            dr.backward(loss)
+            dr.eval(dr.grad(p.log10_k))
+        dr.sync_thread()  # LLVM kernels run asynchronously: wait before reading the clock
+        t2 = time.perf_counter()
+        return t1 - t0, t2 - t1
+
+    run(False), run(True)  # warm-up both (the backward's kernels compile here)
+    fwd = statistics.median(run(False)[0] for _ in range(3))
+    rec, bwd = run(True)
+    return {"forward_s": fwd, "forward_recording_s": rec, "backward_s": bwd, "grad_over_forward": (rec + bwd) / fwd}
+
+
+def peak_memory_child(n_anchors: int, n_k: int, n_frames: int) -> dict:
+    """Run in a fresh process: a full-mode gradient of an n_frames x 100-substep rollout."""
+    import drjit as dr
+
+    from sgdr.physics import SimState, rollout
+
+    cfg, model, params, state, ground = _system(n_anchors, n_k)
+    rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    dr.enable_grad(params)
+    t0 = time.perf_counter()
+    states = rollout(model, params, SimState.at_rest(model, params.v0), ground, n_frames + 1, 1 / FPS, cfg,
+                     grad_mode="full", n_substeps=N_SUB)
+    loss = 0.0
+    for s in states[1:]:
+        loss = loss + dr.sum(dr.squared_norm(s.x))
+    dr.backward(loss)
+    g = np.asarray(dr.grad(params.log10_k).numpy())  # reading it runs the backward kernels
+    return {"peak_rss_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
+            "rss_before_gib": rss_before, "seconds": time.perf_counter() - t0, "grad_finite": bool(np.isfinite(g).all())}
+
+
+def _peak_memory(n_anchors: int, n_k: int, n_frames: int) -> dict:
+    code = (
+        "import json, evaluation.bench_sim as b; "
+        f"print(json.dumps(b.peak_memory_child({n_anchors}, {n_k}, {n_frames})))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def run() -> dict:
+    import sgdr.backend as backend
+
+    b = backend.init("llvm") if backend._current is None else backend.current()
+    log = lambda msg: print(f"[bench sim] {msg}", file=sys.stderr, flush=True)  # noqa: E731
+    log("forward 2048 x 256")
+    big = _forward(2048, 256, reps=3)
+    log("forward 512 x 64")
+    small = _forward(512, 64, reps=5)
+    log("numpy twin")
+    np_big = _numpy_twin(2048, 256, n_steps=3)
+    np_small = _numpy_twin(512, 64, n_steps=5)
+    log("gradient / forward (2 frames x 100 substeps, full)")
+    grad = _gradient_ratio(2048, 256, n_frames=2)
+    log("peak memory (20 frames x 100 substeps, full, child process)")
+    mem = _peak_memory(2048, 256, n_frames=20)
+    return {
+        "spring_steps_per_s": big["steps_per_s"],
+        "spring_steps_per_s_small": small["steps_per_s"],
+        "numpy_ratio": big["steps_per_s"] / np_big,
+        "grad_over_forward": grad["grad_over_forward"],
+        "peak_memory_gib": mem["peak_rss_gib"],
+        "peak_memory_method": "ru_maxrss of a fresh child process running the 20x100 full gradient",
+        "rss_before_rollout_gib": mem["rss_before_gib"],
+        "peak_memory_run_s": mem["seconds"],
+        "kernel_spring_steps_per_s": big["kernel_steps_per_s"],
+        "kernel_spring_steps_per_s_small": small["kernel_steps_per_s"],
+        "first_call_s": big["first_call_s"],
+        "first_call_s_small": small["first_call_s"],
+        "numpy_spring_steps_per_s": np_big,
+        "numpy_ratio_small": small["steps_per_s"] / np_small,
+        "forward_s": grad["forward_s"],
+        "forward_recording_s": grad["forward_recording_s"],
+        "backward_s": grad["backward_s"],
+        "threads": b.threads,
+        "load_avg_1min": os.getloadavg()[0],
+    }

@@ -1,0 +1,100 @@
+"""Inverse-distance-weighted binding of Gaussians to anchors (Eq. 14 of the seed paper).
+
+Each Gaussian centre μ_g is bound once, at rest, to its n_b nearest anchors a (cKDTree) with
+weights w_ga = d_ga^-p_b / Σ_a' d_ga'^-p_b (distances floored at `min_distance`). Forms:
+- `official`:      μ_g = Σ_a w_ga x_a                      (frame 0 is the IDW average, not μ_g)
+- `displacement`:  μ_g = μ_g^rest + Σ_a w_ga (x_a - x_a^rest)  (exact at rest)
+`apply` is a Dr.Jit sum loop over the n_b anchors (gathers only), differentiable w.r.t. the
+anchor positions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import numpy as np
+from scipy.spatial import cKDTree
+
+from sgdr.anchors.sampling import AnchorInputError
+from sgdr.backend import ad
+
+BINDING_FORMS = ("official", "displacement")
+
+
+def idw_weights(rest_centres: np.ndarray, anchors: np.ndarray, n_b: int, p_b: float, min_distance: float = 1e-8):
+    """(index [M, n_b] int64, weights [M, n_b] float64 summing to 1), nearest anchor first."""
+    dist, idx = cKDTree(anchors).query(rest_centres, k=n_b)
+    dist, idx = dist.reshape(-1, n_b), idx.reshape(-1, n_b)
+    w = np.maximum(dist, min_distance) ** (-float(p_b))
+    return idx, w / w.sum(axis=1, keepdims=True)
+
+
+@dataclass
+class IDWBinding:
+    """Fixed binding of M Gaussians to N_A anchors (Eq. 14)."""
+
+    anchor_index: object  # UInt32 [M * n_b], anchors of Gaussian g at g*n_b .. g*n_b+n_b-1
+    weight: object  # Float [M * n_b], normalised IDW weights
+    rest_centres: object  # Array3f [M] Gaussian centres at rest, world
+    anchors_rest: object  # Array3f [N_A] anchor positions at rest, world
+    n_b: int
+    form: str  # "official" | "displacement"
+
+    @staticmethod
+    def build(rest_centres: np.ndarray, anchors: np.ndarray, n_b: int, p_b: float, form: str = "official", min_distance: float = 1e-8) -> "IDWBinding":
+        t = ad()
+        rest_centres = np.asarray(rest_centres, dtype=np.float64)
+        anchors = np.asarray(anchors, dtype=np.float64)
+        for name, a in (("rest_centres", rest_centres), ("anchors", anchors)):
+            if a.ndim != 2 or a.shape[1] != 3:
+                raise AnchorInputError(f"IDWBinding.build: {name} must have shape [N, 3], got {a.shape}")
+            if not np.all(np.isfinite(a)):
+                raise AnchorInputError(f"IDWBinding.build: {name} contain NaN/inf")
+        if not 1 <= n_b <= anchors.shape[0]:
+            raise AnchorInputError(f"anchors.n_b={n_b} must be in [1, N_A={anchors.shape[0]}]")
+        if form not in BINDING_FORMS:
+            raise AnchorInputError(f"anchors.binding={form!r} is not known; choose from {list(BINDING_FORMS)}")
+        idx, w = idw_weights(rest_centres, anchors, n_b, p_b, min_distance)
+        return IDWBinding(
+            anchor_index=t.UInt32(idx.reshape(-1).astype(np.uint32)),
+            weight=t.Float(w.reshape(-1).astype(np.float32)),
+            rest_centres=t.Array3f(*rest_centres.T.astype(np.float32)),
+            anchors_rest=t.Array3f(*anchors.T.astype(np.float32)),
+            n_b=int(n_b),
+            form=form,
+        )
+
+    @property
+    def count(self) -> int:
+        return dr.width(self.rest_centres)
+
+    def apply(self, anchor_x) -> object:
+        """Gaussian centres Array3f [M] from anchor positions Array3f [N_A] (differentiable)."""
+        t = ad()
+        if dr.width(anchor_x) != dr.width(self.anchors_rest):
+            raise AnchorInputError(
+                f"IDWBinding.apply: anchor_x has {dr.width(anchor_x)} entries, binding has N_A={dr.width(self.anchors_rest)}"
+            )
+        m, n_b = self.count, self.n_b
+        displacement = self.form == "displacement"
+        base = dr.arange(t.UInt32, m) * n_b
+
+        def body(b, acc):
+            s = base + b
+            a = dr.gather(t.UInt32, self.anchor_index, s)
+            w = dr.gather(t.Float, self.weight, s)
+            xa = dr.gather(t.Array3f, anchor_x, a)
+            if displacement:
+                xa = xa - dr.gather(t.Array3f, self.anchors_rest, a)
+            return b + 1, acc + w * xa
+
+        _, acc = dr.while_loop(
+            state=(dr.zeros(t.UInt32, m), dr.zeros(t.Array3f, m)),
+            cond=lambda b, acc: b < n_b,
+            body=body,
+            labels=("b", "acc"),
+            label="idw_apply",
+            max_iterations=-1,
+        )
+        return self.rest_centres + acc if displacement else acc

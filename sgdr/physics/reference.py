@@ -1,0 +1,133 @@
+"""Slow float64 NumPy twin of the simulator (spring force, contact, substep, frame, rollout),
+written independently of the Dr.Jit code from the same equations. Used only by tests and by
+the benchmark's reference timing; never by the pipeline.
+
+Arrays: x, v [N_A, 3] float64 world; spring_j [N_A, n_k] int; spring_rest_length [N_A, n_k];
+params as a dict of float64 (`params_numpy`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sgdr.physics.config import PhysicsConfig
+
+
+def params_numpy(params) -> dict:
+    """PhysParams -> dict of float64 arrays/scalars (log10_k [N_A], v0 [3], gravity [3])."""
+    import drjit as dr
+
+    def vec(a):
+        a = dr.detach(a)
+        return np.array([float(a[c].numpy()[0]) for c in range(3)])
+
+    return {
+        "log10_k": np.asarray(dr.detach(params.log10_k).numpy(), dtype=np.float64),
+        "kappa": float(dr.detach(params.kappa).numpy()[0]),
+        "v0": vec(params.v0),
+        "friction": float(dr.detach(params.friction).numpy()[0]),
+        "restitution": float(dr.detach(params.restitution).numpy()[0]),
+        "zeta0": float(dr.detach(params.zeta0).numpy()[0]),
+        "gravity": vec(params.gravity),
+    }
+
+
+def model_numpy(model) -> dict:
+    """SpringModel -> dict: x_rest [N_A,3], spring_j / spring_rest_length [N_A, n_k], mass [N_A]."""
+    d = model.numpy()
+    n, n_k = model.n_anchors, model.n_k
+    d["spring_j"] = d["spring_j"].reshape(n, n_k)
+    d["spring_rest_length"] = d["spring_rest_length"].reshape(n, n_k)
+    return d
+
+
+def soft_vector(kappa: float, n_k: int, n_c: int, normalised: bool) -> np.ndarray:
+    """η_j, j = 1..n_k (Eq. 15)."""
+    eta = np.ones(n_k)
+    base = np.exp(np.log1p(np.exp(kappa)))  # exp(softplus(κ))
+    for j in range(n_c + 1, n_k + 1):
+        e = (j - n_c) / (n_k - n_c) if normalised else float(j - n_c)
+        eta[j - 1] = min(max(2.0 - base**e, 0.0), 1.0)
+    return eta
+
+
+def spring_force(m: dict, p: dict, x: np.ndarray, v: np.ndarray, cfg: PhysicsConfig) -> np.ndarray:
+    """Total spring + damping force on every anchor (Eqs. 8, 9, 15-17), [N_A, 3]."""
+    j, l = m["spring_j"], m["spring_rest_length"]
+    n_k = j.shape[1]
+    eta = soft_vector(p["kappa"], n_k, m["n_c"], cfg.soft_vector_normalised)[None, :]
+    k = 10.0 ** p["log10_k"]
+    d = x[:, None, :] - x[j]  # [N, n_k, 3] from j to i
+    length = np.sqrt(np.maximum((d * d).sum(-1), cfg.min_length**2))
+    d_hat = d / length[..., None]
+    dl = length - l
+    if cfg.spring_law == "paper":
+        g = dl * np.maximum(np.abs(dl), cfg.min_length) ** cfg.p_k
+    elif cfg.spring_law == "official":
+        g = dl * (1.0 + np.abs(dl) / l) ** cfg.p_k
+    else:
+        raise ValueError(cfg.spring_law)
+    if cfg.springs == "directed":
+        k_s = np.broadcast_to(k[:, None], j.shape)
+    elif cfg.symmetric_stiffness == "harmonic":
+        k_s = 2.0 * k[:, None] * k[j] / (k[:, None] + k[j])
+    else:
+        k_s = 0.5 * (k[:, None] + k[j])
+    rel_v = ((v[:, None, :] - v[j]) * d_hat).sum(-1)
+    f = (-(k_s * eta * g + p["zeta0"] * rel_v) / l)[..., None] * d_hat  # on i from spring i->j
+    force = f.sum(axis=1)
+    if cfg.springs == "symmetric":
+        np.add.at(force, j.reshape(-1), -f.reshape(-1, 3))
+    return force
+
+
+def contact(x, v, point, normal, p: dict, dt: float, cfg: PhysicsConfig):
+    """Ground contact B (Eq. 13), per anchor in a plain loop."""
+    x, v = x.copy(), v.copy()
+    g_norm = np.linalg.norm(p["gravity"])
+    for a in range(x.shape[0]):
+        phi = float(np.dot(x[a] - point, normal))
+        if phi >= 0:
+            continue
+        x[a] = x[a] - phi * normal
+        v_n = float(np.dot(v[a], normal))
+        v_t = v[a] - v_n * normal
+        if cfg.contact == "project":
+            v[a] = p["friction"] * v_t
+        elif cfg.contact == "coulomb":
+            if v_n >= 0:
+                continue
+            u = -v_n
+            bounce = p["restitution"] * u if u > cfg.rest_speed_factor * g_norm * dt else 0.0
+            speed_t = max(np.linalg.norm(v_t), cfg.min_length)
+            scale = max(1.0 - p["friction"] * (u + bounce) / speed_t, 0.0)
+            v[a] = scale * v_t + bounce * normal
+        else:
+            raise ValueError(cfg.contact)
+    return x, v
+
+
+def substep(m: dict, p: dict, x, v, ground, dt: float, cfg: PhysicsConfig):
+    """Semi-implicit Euler (Eqs. 10-12) then contact (Eq. 13)."""
+    f = spring_force(m, p, x, v, cfg)
+    v = v + dt * (f / m["particle_mass"][:, None] + p["gravity"][None, :])
+    x = x + dt * v
+    return contact(x, v, np.asarray(ground.point), np.asarray(ground.normal), p, dt, cfg)
+
+
+def simulate_frame(m: dict, p: dict, x, v, ground, dt_frame: float, n_substeps: int, cfg: PhysicsConfig):
+    dt = dt_frame / n_substeps
+    for _ in range(n_substeps):
+        x, v = substep(m, p, x, v, ground, dt, cfg)
+    return x, v
+
+
+def rollout(m: dict, p: dict, ground, n_frames: int, dt_frame: float, n_substeps: int, cfg: PhysicsConfig, x0=None, v0=None):
+    """[(x, v)] for frames 0..n_frames-1 from rest positions (or x0) moving with p["v0"] (or v0)."""
+    x = m["x_rest"].copy() if x0 is None else np.array(x0, dtype=np.float64)
+    v = np.broadcast_to(p["v0"], x.shape).copy() if v0 is None else np.array(v0, dtype=np.float64)
+    out = [(x, v)]
+    for _ in range(1, n_frames):
+        x, v = simulate_frame(m, p, x, v, ground, dt_frame, n_substeps, cfg)
+        out.append((x, v))
+    return out

@@ -1,0 +1,353 @@
+"""Spring forces, semi-implicit Euler substeps, frames and rollouts (Eqs. 8-13), and how they
+are differentiated.
+
+One substep (Eqs. 10-13), for all anchors i at once:
+    F_i  = Σ_j F_k(i, j) + F_ζ(i, j)                                    (Eqs. 8, 9)
+    v_i ← v_i + dt (F_i / m_i + g)                                     (Eq. 11)
+    x_i ← x_i + dt v_i                                                 (Eq. 12)
+    (x_i, v_i) ← B(x_i, v_i)   ground contact                          (Eq. 13)
+with dt = dt_frame / n_t. The spring sum is a per-anchor `dr.while_loop` over the anchor's
+springs (a "sum loop", `max_iterations=-1`): the whole substep is one kernel, gathers only, and
+`dr.eval(x, v)` once per substep materialises the state.
+
+Springs (config `physics.springs`):
+- `directed` (official): anchor i feels its n_k springs i->j with k_ij = k_i / l_ij (Eq. 16);
+  j is not pushed back (no Newton's third law; momentum is not conserved).
+- `symmetric`: every kNN spring s = (i -> j) acts on both ends with equal and opposite forces
+  and stiffness k_s = combine(k_i, k_j) / l_ij (`physics.symmetric_stiffness`: harmonic mean,
+  the default = two half-springs in series, or arithmetic mean). If j is also among i's
+  neighbours the pair is joined by two springs. Anchor i sums its outgoing springs and, through
+  the incoming lists of `SpringModel`, the springs that point at it, each computed with the
+  same floating-point operations from the spring's source, so momentum is conserved to
+  rounding.
+Damping (Eq. 9) uses ζ_ij = ζ0 / l_ij (Eq. 17) along the spring direction, without η.
+
+Gradients (how the loop is differentiated)
+------------------------------------------
+Recorded AD. Each substep is one AD node around the sum loop: Dr.Jit differentiates a
+`max_iterations=-1` loop by re-running its body in the backward pass, so the per-spring
+intermediates (N_A x n_k per substep) are never stored. The tape keeps O(N_A) per substep:
+at most x and v (24 bytes per anchor and substep; tests/test_physics_memory.py measures a
+marginal 12 B on the LLVM backend), independent of n_k. A `full` gradient therefore costs
+<= n_frames x n_t x N_A x 24 B: 98 MB at paper scale for 20 frames x 100 substeps (295 MB at
+30 x 200); the process peak is measured by evaluation/bench_sim.py (README "Simulator"),
+far under the 4 GiB bar. So neither per-frame checkpointing (recompute a frame inside the
+backward) nor a hand-written adjoint is needed for memory.
+
+`truncated` (official) starts every frame after the first from the detached previous state:
+the gradient is Σ_f ∂L/∂x_f · ∂Φ(θ, stop_grad(x_{f-1}))/∂θ, and frame 1 still starts from
+`state0` as given, so v0 receives the gradient of the first frame. Its tape is the same size
+as long as the loss over all frames is built before `dr.backward` (as the pipeline does).
+
+Cost: the backward is the weak point. Dr.Jit runs 7-8 loop-sized reverse kernels per substep
+at 2048 x 256 (apparently one replay per differentiable input the loop reads), each with
+atomic scatter-adds for the gathers of x_j, v_j (and k_j); measured, gradient / forward is
+about 15-20 (README "Simulator"). The lever is a hand-written, gather-only
+adjoint per substep (a `dr.CustomOp` whose backward loops over each anchor's outgoing and
+incoming springs, the `in_spring` lists, and accumulates without atomics).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import drjit as dr
+import numpy as np
+
+from sgdr.backend import ad
+from sgdr.physics.config import PhysicsConfig
+from sgdr.physics.laws import (
+    CONTACTS,
+    LN10,
+    SPRING_LAWS,
+    SYMMETRIC_STIFFNESS,
+    Registry,
+    soft_vector_eta,
+    soft_vector_exponent,
+    softplus,
+)
+from sgdr.physics.model import Ground, PhysicsInputError, PhysParams, SimState, SpringModel
+
+
+class SimulationUnstable(RuntimeError):
+    """The explicit integrator blew up or would blow up; the message names the setting."""
+
+
+# --------------------------------------------------------------------------------------------
+# Spring forces
+# --------------------------------------------------------------------------------------------
+
+
+def _pair_force(xa, xb, va, vb, l, k_s, eta, zeta0, law, cfg: PhysicsConfig):
+    """Force on the source a of the spring a -> b (Eqs. 8, 9): Array3f.
+
+    k_s: stiffness of the spring before the 1 / l_ij of Eq. 16; eta: soft-vector weight."""
+    d = xa - xb
+    inv_length = dr.rsqrt(dr.maximum(dr.squared_norm(d), cfg.min_length * cfg.min_length))
+    length = dr.squared_norm(d) * inv_length
+    inv_l = dr.rcp(l)
+    g = law(length - l, inv_l, cfg.p_k, cfg.min_length)
+    # one division per spring: F = -(k_s η g + ζ0 (v_a - v_b)·d̂) / l · d̂,  d̂ = d / |d|
+    return (-(k_s * eta * g + zeta0 * dr.dot(va - vb, d) * inv_length) * inv_l * inv_length) * d
+
+
+SPRINGS = Registry("springs variant")
+
+
+@SPRINGS.register("directed")
+def springs_directed(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig):
+    """Σ_r force of spring i -> j_r on anchor i, k_ij = k_i / l_ij (official). Array3f [N_A]."""
+    t = ad()
+    n, n_k = model.n_anchors, model.n_k
+    law = SPRING_LAWS.get_named(cfg.spring_law, "physics.spring_law")
+    base = dr.arange(t.UInt32, n) * n_k
+
+    def body(r, f):
+        s = base + r
+        j = dr.gather(t.UInt32, model.spring_j, s)
+        l = dr.gather(t.Float, model.spring_rest_length, s)
+        eta = soft_vector_eta(sp, soft_vector_exponent(t.Float(r), n_k, model.n_c, cfg.soft_vector_normalised))
+        xj = dr.gather(t.Array3f, x, j)
+        vj = dr.gather(t.Array3f, v, j)
+        return r + 1, f + _pair_force(x, xj, v, vj, l, k, eta, zeta0, law, cfg)
+
+    _, f = dr.while_loop(
+        state=(dr.zeros(t.UInt32, n), dr.zeros(t.Array3f, n)),
+        cond=lambda r, f: r < n_k,
+        body=body,
+        labels=("r", "f"),
+        label="springs_directed",
+        max_iterations=-1,
+    )
+    return f
+
+
+@SPRINGS.register("symmetric")
+def springs_symmetric(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig):
+    """Outgoing springs i -> j plus the reaction of incoming springs a -> i. Array3f [N_A]."""
+    t = ad()
+    n, n_k = model.n_anchors, model.n_k
+    law = SPRING_LAWS.get_named(cfg.spring_law, "physics.spring_law")
+    combine = SYMMETRIC_STIFFNESS.get_named(cfg.symmetric_stiffness, "physics.symmetric_stiffness")
+    i = dr.arange(t.UInt32, n)
+    base = i * n_k
+
+    def eta_of(rank):
+        return soft_vector_eta(sp, soft_vector_exponent(t.Float(rank), n_k, model.n_c, cfg.soft_vector_normalised))
+
+    def body_out(r, f):
+        s = base + r
+        j = dr.gather(t.UInt32, model.spring_j, s)
+        l = dr.gather(t.Float, model.spring_rest_length, s)
+        k_s = combine(k, dr.gather(t.Float, k, j))
+        xj = dr.gather(t.Array3f, x, j)
+        vj = dr.gather(t.Array3f, v, j)
+        return r + 1, f + _pair_force(x, xj, v, vj, l, k_s, eta_of(r), zeta0, law, cfg)
+
+    _, f_out = dr.while_loop(
+        state=(dr.zeros(t.UInt32, n), dr.zeros(t.Array3f, n)),
+        cond=lambda r, f: r < n_k,
+        body=body_out,
+        labels=("r", "f"),
+        label="springs_symmetric_out",
+        max_iterations=-1,
+    )
+
+    q_end = dr.gather(t.UInt32, model.in_offset, i + 1)
+
+    def body_in(q, f):
+        s = dr.gather(t.UInt32, model.in_spring, q)
+        a = s // n_k  # source anchor of spring s
+        l = dr.gather(t.Float, model.spring_rest_length, s)
+        k_s = combine(dr.gather(t.Float, k, a), k)
+        xa = dr.gather(t.Array3f, x, a)
+        va = dr.gather(t.Array3f, v, a)
+        return q + 1, f - _pair_force(xa, x, va, v, l, k_s, eta_of(s - a * n_k), zeta0, law, cfg)
+
+    # A separate accumulator: a sum loop must not take a differentiable input as its state.
+    _, f_in = dr.while_loop(
+        state=(dr.gather(t.UInt32, model.in_offset, i), dr.zeros(t.Array3f, n)),
+        cond=lambda q, f: q < q_end,
+        body=body_in,
+        labels=("q", "f"),
+        label="springs_symmetric_in",
+        max_iterations=-1,
+    )
+    return f_out + f_in
+
+
+# --------------------------------------------------------------------------------------------
+# Checks
+# --------------------------------------------------------------------------------------------
+
+
+def soft_vector_numpy(kappa: float, n_k: int, n_c: int, normalised: bool) -> np.ndarray:
+    """η_j for j = 1..n_k as float64 NumPy (Eq. 15), for the stability bound."""
+    j = np.arange(1, n_k + 1, dtype=np.float64)
+    e = (j - n_c) / max(n_k - n_c, 1) if normalised else j - n_c
+    sp = np.logaddexp(0.0, kappa)
+    return np.where(e > 0, np.clip(2.0 - np.exp(sp * e), 0.0, 1.0), 1.0)
+
+
+def effective_stiffness(model: SpringModel, params: PhysParams, cfg: PhysicsConfig) -> np.ndarray:
+    """k_eff,i = Σ over the springs acting on anchor i of η k_s / l (linear part, strain 0),
+    float64 [N_A]: the diagonal of the stiffness matrix that bounds the stable substep."""
+    host = model_host(model)
+    k = 10.0 ** np.asarray(dr.detach(params.log10_k).numpy(), dtype=np.float64)
+    eta = soft_vector_numpy(float(dr.detach(params.kappa).numpy()[0]), model.n_k, model.n_c, cfg.soft_vector_normalised)
+    j, l = host["spring_j"], host["spring_rest_length"]
+    if cfg.springs == "directed":
+        return k * (eta[None, :] / l).sum(axis=1)
+    combine = SYMMETRIC_STIFFNESS.get_named(cfg.symmetric_stiffness, "physics.symmetric_stiffness")
+    k_s = combine(k[:, None], k[j]) * eta[None, :] / l  # the registry's functions work on NumPy too
+    return k_s.sum(axis=1) + np.bincount(j.reshape(-1), weights=k_s.reshape(-1), minlength=model.n_anchors)
+
+
+def model_host(model: SpringModel) -> dict:
+    """NumPy copies of the topology, cached on the model (static, never traced)."""
+    cache = model.__dict__.get("_host")
+    if cache is None:
+        cache = {
+            "spring_j": np.asarray(model.spring_j.numpy(), dtype=np.int64).reshape(model.n_anchors, model.n_k),
+            "spring_rest_length": np.asarray(model.spring_rest_length.numpy(), dtype=np.float64).reshape(
+                model.n_anchors, model.n_k
+            ),
+            "particle_mass": np.asarray(model.particle_mass.numpy(), dtype=np.float64),
+        }
+        model.__dict__["_host"] = cache
+    return cache
+
+
+def stable_substeps(model: SpringModel, params: PhysParams, dt_frame: float, cfg: PhysicsConfig) -> int:
+    """Smallest n_t with dt_frame / n_t <= cfl_factor sqrt(m_i / k_eff,i) for every anchor."""
+    host = model_host(model)
+    k_eff = effective_stiffness(model, params, cfg)
+    dt_max = cfg.cfl_factor * float(np.min(np.sqrt(host["particle_mass"] / np.maximum(k_eff, 1e-30))))
+    return int(np.ceil(dt_frame / dt_max))
+
+
+def check_inputs(model: SpringModel, params: PhysParams, state: SimState, dt_frame: float, n_substeps: int, cfg: PhysicsConfig) -> None:
+    """Sizes, finiteness and the stability bound; raises naming the field / setting."""
+    params.validate(model)
+    for name in ("x", "v"):
+        a = getattr(state, name)
+        if dr.width(a) != model.n_anchors:
+            raise PhysicsInputError(f"SimState.{name} has {dr.width(a)} entries, expected N_A={model.n_anchors}")
+        if not bool(dr.all(dr.isfinite(dr.detach(a)), axis=None)):
+            raise PhysicsInputError(f"SimState.{name} contains NaN/inf")
+    if not (dt_frame > 0 and np.isfinite(dt_frame)):
+        raise PhysicsInputError(f"dt_frame={dt_frame} must be a positive number of seconds")
+    if not (isinstance(n_substeps, (int, np.integer)) and n_substeps >= 1):
+        raise PhysicsInputError(f"n_substeps={n_substeps!r} must be a positive integer (physics.n_substeps)")
+    if np.any(model_host(model)["particle_mass"] <= 0):
+        raise PhysicsInputError("SpringModel.particle_mass must be positive (physics.m0)")
+    need = stable_substeps(model, params, dt_frame, cfg)
+    if n_substeps < need:
+        k_max = float(np.max(dr.detach(params.log10_k).numpy()))
+        raise SimulationUnstable(
+            f"dt = dt_frame / n_substeps = {dt_frame / n_substeps:.3g} s is too large for max log10_k = "
+            f"{k_max:.3g}: stability needs dt <= physics.cfl_factor ({cfg.cfl_factor}) x sqrt(m / k_eff), "
+            f"i.e. n_substeps >= {need}; raise physics.n_substeps (now {n_substeps}) or lower the stiffness"
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# Substep, frame, rollout
+# --------------------------------------------------------------------------------------------
+
+
+def _frame_constants(model: SpringModel, params: PhysParams, ground: Ground):
+    """Per-frame values shared by all substeps (AD-attached to params where they depend on it)."""
+    t = ad()
+    return {
+        "k": dr.exp(LN10 * params.log10_k),  # k_i [N_A]
+        "sp": softplus(params.kappa),  # softplus(κ) [1]
+        "inv_m": dr.rcp(model.particle_mass),  # [N_A]
+        "point": t.Array3f(*map(float, ground.point)),
+        "normal": t.Array3f(*map(float, ground.normal)),
+        "g_norm": dr.opaque(t.Float, float(np.linalg.norm(dr.detach(params.gravity).numpy()))),
+    }
+
+
+def substep(model: SpringModel, params: PhysParams, state: SimState, ground_c: dict, dt: float, cfg: PhysicsConfig) -> SimState:
+    """One semi-implicit Euler substep (Eqs. 10-13); `ground_c` from `_frame_constants`."""
+    springs = SPRINGS.get_named(cfg.springs, "physics.springs")
+    contact = CONTACTS.get_named(cfg.contact, "physics.contact")
+    c = ground_c
+    f = springs(model, state.x, state.v, c["k"], c["sp"], params.zeta0, cfg)
+    v = state.v + dt * (f * c["inv_m"] + params.gravity)  # Eq. 11
+    x = state.x + dt * v  # Eq. 12
+    x, v = contact(x, v, c["point"], c["normal"], params, dt, c["g_norm"], cfg)  # Eq. 13
+    dr.eval(x, v)
+    return SimState(x=x, v=v)
+
+
+def simulate_frame(
+    model: SpringModel,
+    params: PhysParams,
+    state: SimState,
+    ground: Ground,
+    dt_frame: float,
+    n_substeps: int,
+    cfg: PhysicsConfig,
+    check: bool = True,
+) -> SimState:
+    """Advance one frame (dt_frame seconds) with n_substeps substeps; differentiable w.r.t.
+    `params` and `state` (recorded AD). check: validate inputs and the stability bound before,
+    and finiteness after (raises SimulationUnstable)."""
+    if check:
+        check_inputs(model, params, state, dt_frame, n_substeps, cfg)
+    dt = float(dt_frame) / int(n_substeps)
+    c = _frame_constants(model, params, ground)
+    for _ in range(int(n_substeps)):
+        state = substep(model, params, state, c, dt, cfg)
+    if check and not bool(dr.all(dr.isfinite(dr.detach(state.x)) & dr.isfinite(dr.detach(state.v)), axis=None)):
+        raise SimulationUnstable(
+            f"NaN/inf after {n_substeps} substeps of {dt:.3g} s (physics.n_substeps={n_substeps}, "
+            f"spring_law={cfg.spring_law}, springs={cfg.springs}); raise physics.n_substeps or enable "
+            f"physics.retry_on_nan"
+        )
+    return state
+
+
+GRAD_MODES: Registry = Registry("gradient mode")
+GRAD_MODES["full"] = lambda state: state  # gradients through every frame
+GRAD_MODES["truncated"] = SimState.detach  # official: each frame from the detached previous one
+
+
+def rollout(
+    model: SpringModel,
+    params: PhysParams,
+    state0: SimState,
+    ground: Ground,
+    n_frames: int,
+    dt_frame: float,
+    cfg: PhysicsConfig,
+    grad_mode: str | None = None,
+    n_substeps: int | None = None,
+) -> list[SimState]:
+    """States at frames 0..n_frames-1 (frame 0 = state0), each frame n_substeps substeps
+    (default physics.n_substeps). grad_mode (default physics.grad_mode): "full" | "truncated".
+
+    With physics.retry_on_nan, too few substeps for the stability bound are doubled up front,
+    and a rollout that produces NaN/inf starts again from state0 with twice the substeps (the
+    official remedy), up to physics.max_substeps."""
+    enter: Callable = GRAD_MODES.get_named(grad_mode or cfg.grad_mode, "grad_mode")
+    n_sub = int(n_substeps or cfg.n_substeps)
+    if n_frames < 1:
+        raise PhysicsInputError(f"n_frames={n_frames} must be >= 1")
+    if cfg.retry_on_nan:
+        need = stable_substeps(model, params, dt_frame, cfg)
+        while n_sub < need and n_sub * 2 <= cfg.max_substeps:
+            n_sub *= 2
+    while True:
+        try:
+            states = [state0]
+            for f in range(1, n_frames):
+                start = states[-1] if f == 1 else enter(states[-1])
+                states.append(simulate_frame(model, params, start, ground, dt_frame, n_sub, cfg))
+            return states
+        except SimulationUnstable:
+            if not cfg.retry_on_nan or n_sub * 2 > cfg.max_substeps:
+                raise
+            n_sub *= 2  # the official remedy: start again with twice the substeps

@@ -56,4 +56,8 @@ class ReconConfig:
     render_videos: bool = True  # write side-by-side videos (ground truth | prediction)
     write_plys: bool = True  # write per-frame PLYs of Gaussian centres and anchors
     eval_emd: bool = True  # compute the EMD (exact assignment, the slowest metric)
+    contact_margin: float = -1.0  # the simulated ground (anchor contact plane) is raised by this
+    #                               along its normal, scene units: the anchors are interior points,
+    #                               the visible surface lies about one Gaussian scale beyond them
+    #                               (< 0 = the median scale of the static fit's Gaussians)
     simulate: SimulateConfig = field(default_factory=SimulateConfig)  # experiments/simulate.py

@@ -270,7 +270,8 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
             json.dumps(
                 {"kappa": res.kappa, "friction": res.friction, "restitution": res.restitution,
                  "n_substeps": res.n_substeps, "pass_losses": res.pass_losses,
-                 "eval_loss_initial": res.eval_loss_initial, "eval_loss_final": res.eval_loss_final}
+                 "eval_loss_initial": res.eval_loss_initial, "eval_loss_final": res.eval_loss_final,
+                 "log10_k_grid_losses": res.k_grid}
             )
         )
 
@@ -284,7 +285,7 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
 
     dyn_keys = ("iterations", "lambda_dssim", "substep_schedule", "cameras_per_frame", "lr_log10_k", "lr_kappa",
                 "lr_friction", "lr_restitution", "mode", "log10_k_min", "log10_k_max", "friction_max",
-                "nan_substep_increase", "contact_margin")
+                "nan_substep_increase", "contact_margin", "log10_k_grid")
     stages["dynamics"] = runner.run(
         "dynamics",
         {"recon": {k: getattr(cfg.recon, k) for k in dyn_keys}, "physics": cfg.physics, "render": cfg.render,

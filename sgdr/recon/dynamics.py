@@ -27,6 +27,11 @@ Two schedules (`recon.mode`):
 
 n_t follows `recon.substep_schedule` over the passes (official: 100 -> 150 -> 200).
 
+Optional coarse start (`recon.log10_k_grid`, not in the official code): before the first pass
+every listed uniform log10 k is scored by the deterministic all-view rollout loss and the best
+one replaces physics.log10_k_init. Measured on the small torus, that loss is rugged in the
+global stiffness and its local gradient points away from the better basin (README).
+
 The stage checkpoints after every `recon.checkpoint_every` passes (parameters, Adam moments,
 loss history) and resumes exactly. Besides the noisy training loss (random cameras) it
 reports a deterministic score before and after training: the loss of a forward rollout from

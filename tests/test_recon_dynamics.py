@@ -125,3 +125,15 @@ def test_refinement_lowers_the_frame0_loss(scene):
     before, after = all_view_l1(start), all_view_l1(res.gaussians)
     assert after < 0.7 * before, (before, after)
     assert len(res.losses) == 40
+
+
+def test_log10_k_grid_starts_training_from_the_best_uniform_stiffness(scene):
+    s = scene
+    pcfg = replace(s["pcfg"], log10_k_init=1.5)
+    targets = [frame_targets(s["seq"], f) for f in range(7)]
+    cfg = ReconConfig(iterations=1, substep_schedule=[40], lr_log10_k=1e-4, lr_friction=1e-4, log10_k_grid=[1.5, 3.0, 4.5])
+    res = fit_dynamics(s["model"], s["binding"], s["bound"], s["v0"], np.array([0, 0, -9.8]), s["ground"], targets, s["cams"], FPS, pcfg, cfg, s["rcfg"], seed=0)
+    assert set(res.k_grid) == {"1.5", "3", "4.5"}
+    assert min(res.k_grid, key=res.k_grid.get) == "3", res.k_grid  # the generating stiffness
+    assert res.eval_loss_initial == min(res.k_grid.values())
+    assert abs(res.log10_k.mean() - 3.0) < 0.01  # started there, tiny learning rate

@@ -61,7 +61,9 @@ class Asset:
         return model, binding
 
 
-def save_asset(out, gaussians, anchors, values: dict, physics_cfg, anchor_cfg, seq, n_substeps: int, rest_centres) -> Path:
+def save_asset(out, gaussians, anchors, values: dict, physics_cfg, anchor_cfg, seq, n_substeps: int, rest_centres, ground_point=None) -> Path:
+    """ground_point [3]: the anchors' contact plane as simulated (the sequence's ground raised by
+    the pipeline's contact margin); None = the sequence's ground point."""
     from sgdr.gaussians.ply import save_ply
 
     out = Path(out)
@@ -73,7 +75,7 @@ def save_asset(out, gaussians, anchors, values: dict, physics_cfg, anchor_cfg, s
     meta = {
         "physics": _plain(physics_cfg),
         "anchors": _plain(anchor_cfg),
-        "ground": {"point": np.asarray(seq.ground_point, float).tolist(), "normal": np.asarray(seq.ground_normal, float).tolist()},
+        "ground": {"point": np.asarray(seq.ground_point if ground_point is None else ground_point, float).tolist(), "normal": np.asarray(seq.ground_normal, float).tolist()},
         "fps": float(seq.fps),
         "n_frames": int(seq.n_frames),
         "n_fit": int(seq.n_fit),

@@ -46,6 +46,9 @@ class ReconConfig:
     refine_lambda_dssim: float = 0.2  # λ of the refinement loss (as the static fit)
     v0_lambda_dssim: float = 0.05  # λ of the initial-velocity loss
     v0_views_per_step: int = 1  # random views rendered per free-fall frame and v0 step (0 = all)
+    log10_k_grid: list[float] = field(default_factory=list)  # uniform log10 k values scored by the
+    #   deterministic all-view rollout loss before training; the best one replaces
+    #   physics.log10_k_init as the start (empty = start at physics.log10_k_init)
     log10_k_min: float = 0.0  # log10 k_i is clamped to [min, max] after each step
     log10_k_max: float = 7.0
     friction_max: float = 1.0  # friction clamped to [0, friction_max] after each step
@@ -56,4 +59,8 @@ class ReconConfig:
     render_videos: bool = True  # write side-by-side videos (ground truth | prediction)
     write_plys: bool = True  # write per-frame PLYs of Gaussian centres and anchors
     eval_emd: bool = True  # compute the EMD (exact assignment, the slowest metric)
+    contact_margin: float = -1.0  # the simulated ground (anchor contact plane) is raised by this
+    #                               along its normal, scene units: the anchors are interior points,
+    #                               the visible surface lies about one Gaussian scale beyond them
+    #                               (< 0 = the median scale of the static fit's Gaussians)
     simulate: SimulateConfig = field(default_factory=SimulateConfig)  # experiments/simulate.py

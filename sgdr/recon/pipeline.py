@@ -94,6 +94,21 @@ def sequence_digest(root: Path) -> str:
     return key_hash({str(p.relative_to(root)): file_hash(p) for p in sorted(root.rglob("*")) if p.is_file()})
 
 
+def contact_margin(recon_cfg, static_gaussians) -> float:
+    """Height (scene units) of the anchors' contact plane above the sequence's ground.
+
+    The anchors are averages of Gaussian centres, i.e. interior points; the rendered surface
+    extends about one Gaussian scale beyond the outermost centres. Letting the anchors touch
+    the true ground sinks the visible object into it (measured on the small torus: by ~0.015,
+    the lowest anchor 0.015 above the lowest ground-truth particle at frame 0). recon.contact_margin
+    >= 0 is used as given; < 0 takes the median scale of the static fit's Gaussians.
+    """
+    if float(recon_cfg.contact_margin) >= 0.0:
+        return float(recon_cfg.contact_margin)
+    scales = np.exp(np.asarray(static_gaussians.to_numpy()["log_scales"], float))
+    return float(np.median(scales))
+
+
 # ------------------------------------------------------------------------------ the run
 def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> RunOutputs:
     """Reconstruct, predict, evaluate and report one sequence; returns the run's outputs.
@@ -235,7 +250,9 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
         velocity_load,
     )
     v0 = np.asarray(stages["velocity"].value["v0"], dtype=np.float64)
-    ground = Ground(np.asarray(seq.ground_point, float), np.asarray(seq.ground_normal, float))
+    margin = contact_margin(cfg.recon, static_g)
+    normal = np.asarray(seq.ground_normal, float) / np.linalg.norm(np.asarray(seq.ground_normal, float))
+    ground = Ground(np.asarray(seq.ground_point, float) + margin * normal, normal)
 
     # ---- 5. dynamic reconstruction
     def dynamics_produce(out: Path, ckpt) -> None:
@@ -253,7 +270,8 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
             json.dumps(
                 {"kappa": res.kappa, "friction": res.friction, "restitution": res.restitution,
                  "n_substeps": res.n_substeps, "pass_losses": res.pass_losses,
-                 "eval_loss_initial": res.eval_loss_initial, "eval_loss_final": res.eval_loss_final}
+                 "eval_loss_initial": res.eval_loss_initial, "eval_loss_final": res.eval_loss_final,
+                 "log10_k_grid_losses": res.k_grid}
             )
         )
 
@@ -267,7 +285,7 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
 
     dyn_keys = ("iterations", "lambda_dssim", "substep_schedule", "cameras_per_frame", "lr_log10_k", "lr_kappa",
                 "lr_friction", "lr_restitution", "mode", "log10_k_min", "log10_k_max", "friction_max",
-                "nan_substep_increase")
+                "nan_substep_increase", "contact_margin", "log10_k_grid")
     stages["dynamics"] = runner.run(
         "dynamics",
         {"recon": {k: getattr(cfg.recon, k) for k in dyn_keys}, "physics": cfg.physics, "render": cfg.render,
@@ -351,7 +369,8 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
     def asset_produce(out: Path, ckpt) -> None:
         from sgdr.recon.asset import save_asset
 
-        save_asset(out, gaussians, anchors, values, cfg.physics, cfg.anchors, seq, dyn["n_substeps"], static_g.to_numpy()["means"])
+        save_asset(out, gaussians, anchors, values, cfg.physics, cfg.anchors, seq, dyn["n_substeps"], static_g.to_numpy()["means"],
+                   ground_point=ground.point)
 
     def asset_load(out: Path):
         from sgdr.recon.asset import load_asset
@@ -360,7 +379,8 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
 
     stages["asset"] = runner.run(
         "asset",
-        {"input": [stages["dynamics"].digest, stages["refine"].digest, stages["velocity"].digest], "sequence": seq_hash},
+        {"input": [stages["dynamics"].digest, stages["refine"].digest, stages["velocity"].digest], "sequence": seq_hash,
+         "ground_point": ground.point.tolist()},
         asset_produce,
         asset_load,
     )

@@ -96,7 +96,8 @@ def test_drivers_run_on_the_tiny_preset(tiny_run):
 
     overrides, cfg, out = tiny_run
     root = Path(__file__).resolve().parent.parent
-    common = overrides
+    # Hydra's own run folder (logs, .hydra/) goes to the test's temp dir, not the repo
+    common = [*overrides, f"hydra.run.dir={cfg.recon.output_dir}/hydra"]
     rec = subprocess.run([sys.executable, "experiments/reconstruct.py", *common], cwd=root, capture_output=True, text=True)
     assert rec.returncode == 0, rec.stderr[-2000:]
     last = json.loads(rec.stdout.strip().splitlines()[-1])

@@ -55,6 +55,7 @@ import drjit as dr
 import numpy as np
 
 from sgdr.backend import ad
+from sgdr.physics.adjoint import spring_forces
 from sgdr.physics.config import PhysicsConfig
 from sgdr.physics.laws import (
     CONTACTS,
@@ -176,6 +177,26 @@ def springs_symmetric(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig
     return f_out + f_in
 
 
+# How the spring sum is differentiated (`physics.adjoint`, see the module docstring):
+# (model, x, v, k, sp, zeta0, cfg) -> Array3f [N_A].
+ADJOINTS = Registry("spring-force adjoint")
+
+
+@ADJOINTS.register("recorded")
+def forces_recorded(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig):
+    """Recorded AD through the forward sum loop (the reference)."""
+    return SPRINGS.get_named(cfg.springs, "physics.springs")(model, x, v, k, sp, zeta0, cfg)
+
+
+@ADJOINTS.register("gather")
+def forces_gather(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig):
+    """The same forward; hand-written gather-only adjoint (sgdr/physics/adjoint.py)."""
+    forward = SPRINGS.get_named(cfg.springs, "physics.springs")
+    if not dr.grad_enabled(x, v, k, sp, zeta0):
+        return forward(model, x, v, k, sp, zeta0, cfg)
+    return spring_forces(model, x, v, k, sp, zeta0, cfg, forward)
+
+
 # --------------------------------------------------------------------------------------------
 # Checks
 # --------------------------------------------------------------------------------------------
@@ -271,14 +292,16 @@ def _frame_constants(model: SpringModel, params: PhysParams, ground: Ground):
 
 def substep(model: SpringModel, params: PhysParams, state: SimState, ground_c: dict, dt: float, cfg: PhysicsConfig) -> SimState:
     """One semi-implicit Euler substep (Eqs. 10-13); `ground_c` from `_frame_constants`."""
-    springs = SPRINGS.get_named(cfg.springs, "physics.springs")
+    springs = ADJOINTS.get_named(cfg.adjoint, "physics.adjoint")
     contact = CONTACTS.get_named(cfg.contact, "physics.contact")
     c = ground_c
     f = springs(model, state.x, state.v, c["k"], c["sp"], params.zeta0, cfg)
     v = state.v + dt * (f * c["inv_m"] + params.gravity)  # Eq. 11
     x = state.x + dt * v  # Eq. 12
     x, v = contact(x, v, c["point"], c["normal"], params, dt, c["g_norm"], cfg)  # Eq. 13
-    dr.eval(x, v)
+    # f too, in the same kernel: the contact's backward re-reads the pre-contact x, v, which
+    # would otherwise re-run (and re-compile) the spring loop for every substep
+    dr.eval(x, v, f)
     return SimState(x=x, v=v)
 
 

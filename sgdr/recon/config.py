@@ -6,6 +6,23 @@ from dataclasses import dataclass, field
 
 
 @dataclass
+class SimulateConfig:
+    """Edited conditions for `experiments/simulate.py` (the paper's Figs. 6-7)."""
+
+    asset: str = ""  # asset folder ("" = <recon.output_dir>/<run name>/asset)
+    out_dir: str = ""  # where videos go ("" = <asset>/../simulate/<tag>)
+    tag: str = "edited"  # name of this simulation's output folder
+    n_frames: int = 0  # frames to simulate (0 = the sequence's)
+    n_substeps: int = 0  # n_t (0 = the value reached in training)
+    ground_height: float = 0.0  # ground plane moved along its normal, scene units
+    friction: float = -1.0  # ground friction (< 0 = the identified value)
+    gravity: list[float] = field(default_factory=list)  # [3] m/s² (empty = the identified/sequence's)
+    stiffness_scale: float = 1.0  # every k_i multiplied by this
+    v0: list[float] = field(default_factory=list)  # [3] initial velocity (empty = identified)
+    cameras: str = "sequence"  # "sequence" (all views tiled) | "orbit" (one turning camera)
+
+
+@dataclass
 class ReconConfig:
     iterations: int = 200  # dynamic-reconstruction passes over the fit frames
     lambda_dssim: float = 0.05  # λ of the dynamic loss
@@ -15,7 +32,28 @@ class ReconConfig:
     lr_kappa: float = 1e-2  # Adam, soft vector κ
     lr_friction: float = 1e-2  # Adam, ground friction
     lr_restitution: float = 1e-2  # Adam, restitution (coulomb contact)
-    lr_v0: float = 1e-2  # Adam, initial velocity
+    lr_v0: float = 5e-2  # Adam, initial velocity (scene units / s per step, roughly)
     v0_iterations: int = 100  # Adam steps of the initial-velocity stage
     refine_iterations: int = 300  # Adam steps refining scale, colour, opacity at IDW positions
     force: bool = False  # redo stages whose outputs exist
+    # ---- added by the pipeline (issue 6)
+    mode: str = "truncated"  # "truncated" (official: per frame, detached state, Adam step per
+    #                          frame, one random camera) | "full" (backprop through all fit
+    #                          frames, one Adam step per pass, cameras_per_frame cameras each)
+    lr_scale: float = 5e-3  # Adam, log scales during the refinement (frame 0)
+    lr_color: float = 2.5e-2  # Adam, colour logits during the refinement
+    lr_opacity: float = 5e-2  # Adam, opacity logits during the refinement
+    refine_lambda_dssim: float = 0.2  # λ of the refinement loss (as the static fit)
+    v0_lambda_dssim: float = 0.05  # λ of the initial-velocity loss
+    v0_views_per_step: int = 1  # random views rendered per free-fall frame and v0 step (0 = all)
+    log10_k_min: float = 0.0  # log10 k_i is clamped to [min, max] after each step
+    log10_k_max: float = 7.0
+    friction_max: float = 1.0  # friction clamped to [0, friction_max] after each step
+    nan_substep_increase: int = 50  # n_t grows by this on a non-finite frame (official remedy)
+    checkpoint_every: int = 1  # dynamic passes between checkpoints (0 = never)
+    output_dir: str = "outputs"  # runs go to <output_dir>/<run_name>
+    run_name: str = ""  # "" = <object>_<preset>_s<seed>
+    render_videos: bool = True  # write side-by-side videos (ground truth | prediction)
+    write_plys: bool = True  # write per-frame PLYs of Gaussian centres and anchors
+    eval_emd: bool = True  # compute the EMD (exact assignment, the slowest metric)
+    simulate: SimulateConfig = field(default_factory=SimulateConfig)  # experiments/simulate.py

@@ -1,0 +1,76 @@
+"""Small shared pieces of the reconstruction stages: targets, posed Gaussians, rendering."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from sgdr.backend import ad
+
+
+def to_tensor(img: np.ndarray):
+    """[H, W, 3|4] float image in [0, 1] -> TensorXf [H, W, 3] (alpha dropped: the benchmark
+    renders on black, so the RGB already holds the silhouette)."""
+    t = ad()
+    return t.TensorXf(np.ascontiguousarray(np.asarray(img)[..., :3], dtype=np.float32))
+
+
+def frame_targets(seq, frame: int) -> list:
+    """Ground-truth images of every view of `frame` as TensorXf [H, W, 3]."""
+    return [to_tensor(seq.image(v, frame)) for v in range(len(seq.cameras))]
+
+
+def posed(gaussians, means):
+    """The Gaussians with their centres replaced (means: Array3f [M], may carry gradients)."""
+    return replace(gaussians, means=means)
+
+
+def isotropic_log_scale(gaussians):
+    """Float [M]: the one log scale of each isotropic Gaussian (mean of its three entries)."""
+    s = gaussians.log_scales
+    return (s[0] + s[1] + s[2]) / 3.0
+
+
+def as_array3(log_scale):
+    """Float [M] -> Array3f [M] with three equal entries (isotropic scales)."""
+    return ad().Array3f(log_scale, log_scale, log_scale)
+
+
+def points_to_array3(points: np.ndarray):
+    """np [N, 3] -> Array3f [N] (float32)."""
+    p = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    return ad().Array3f(*[np.ascontiguousarray(p[:, k]) for k in range(3)])
+
+
+def array3_to_points(a) -> np.ndarray:
+    """Array3f [N] -> np [N, 3] float64 (detached)."""
+    import drjit as dr
+
+    return np.asarray(dr.detach(a).numpy(), dtype=np.float64).T.reshape(-1, 3)
+
+
+def render(gaussians, camera, render_cfg):
+    """`sgdr.render`'s splatting renderer (CONTRACTS.md): RenderOutput(rgb [H, W, 3], alpha)."""
+    import sgdr.render
+
+    fn = getattr(sgdr.render, "render", None)
+    if fn is None:  # the package does not re-export it: take it from its module
+        from sgdr.render.splat import render as fn
+    return fn(gaussians, camera, render_cfg)
+
+
+def render_rgb_numpy(gaussians, camera, render_cfg) -> np.ndarray:
+    """Forward-only render -> np [H, W, 3] float32 in [0, 1]."""
+    import drjit as dr
+
+    with dr.suspend_grad():
+        out = render(gaussians, camera, render_cfg)
+        return np.clip(np.asarray(out.rgb.numpy(), dtype=np.float32), 0.0, 1.0)
+
+
+def scalar(x) -> float:
+    """A one-element Dr.Jit value (Float or TensorXf) -> Python float (detached)."""
+    import drjit as dr
+
+    return float(np.asarray(dr.detach(x).numpy()).reshape(-1)[0])

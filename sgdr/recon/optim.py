@@ -1,0 +1,64 @@
+"""Small helpers around Mitsuba's Adam (`mi.ad.Adam`, i.e. `drjit.opt.Adam`).
+
+We never write an optimiser: these only build one with per-parameter learning rates, and
+move its state (parameter values and Adam moments) to and from NumPy so a long stage can
+checkpoint and resume exactly (`sgdr.recon.stages.Checkpoint`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+
+def make_adam(params: Mapping[str, tuple[object, float]]):
+    """Adam over {name: (Dr.Jit value, learning rate)}; each value is copied and made
+    differentiable by the optimiser (read them back with `opt[name]`)."""
+    import mitsuba as mi
+
+    if not params:
+        raise ValueError("make_adam: no parameters to optimise")
+    first_lr = next(iter(params.values()))[1]
+    opt = mi.ad.Adam(lr=float(first_lr))
+    for name, (value, _) in params.items():
+        opt[name] = value
+    opt.set_learning_rate({name: float(lr) for name, (_, lr) in params.items()})
+    return opt
+
+
+def _np(x) -> np.ndarray:
+    return np.asarray(x.numpy() if hasattr(x, "numpy") else x)
+
+
+def adam_to_numpy(opt) -> dict[str, np.ndarray]:
+    """Flatten an Adam's parameters and moments into {"<name>/value|t|m|v": array}."""
+    import drjit as dr
+
+    out: dict[str, np.ndarray] = {}
+    for name, (value, _promoted, _lr, extra) in opt.state.items():
+        t, m_t, v_t, _vmax = extra
+        out[f"{name}/value"] = _np(dr.detach(value).array)
+        out[f"{name}/t"] = _np(t).reshape(-1)
+        out[f"{name}/m"] = _np(m_t)
+        out[f"{name}/v"] = _np(v_t)
+    return out
+
+
+def adam_from_numpy(opt, arrays: Mapping[str, np.ndarray]) -> None:
+    """Restore values and moments saved by `adam_to_numpy` into an Adam with the same keys."""
+    import drjit as dr
+
+    for name in list(opt.state.keys()):
+        value, promoted, lr, extra = opt.state[name]
+        flat_t = type(value.array)
+        new_flat = flat_t(np.asarray(arrays[f"{name}/value"]))
+        if np.asarray(arrays[f"{name}/value"]).shape != _np(dr.detach(value).array).shape:
+            raise ValueError(f"checkpoint: parameter {name!r} does not have the optimiser's shape")
+        opt[name] = type(value)(new_flat)
+        value, promoted, lr, extra = opt.state[name]
+        t_type = type(extra[0])
+        m = flat_t(np.asarray(arrays[f"{name}/m"]))
+        v = flat_t(np.asarray(arrays[f"{name}/v"]))
+        t = t_type(np.asarray(arrays[f"{name}/t"]).astype(np.uint32))
+        opt.state[name] = (value, promoted, lr, (t, m, v, extra[3]))

@@ -1,0 +1,110 @@
+"""The whole pipeline on the tiny preset: generate -> reconstruct -> predict -> evaluate.
+
+Asserts what issue 6 asks of CI: the dynamic loss decreases (the deterministic all-view loss
+of a rollout from frame 0, before vs after training) and the fitted model beats the
+physics-free baseline on future frames; plus the run's files, stage skipping on a rerun and
+the redo of a corrupted stage (with everything downstream of it).
+"""
+
+import json
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from sgdr.config import compose
+from sgdr.recon.pipeline import STAGES, run_pipeline
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("e2e")
+    overrides = [
+        "preset=tiny",
+        f"data_dir={root / 'data'}",
+        f"recon.output_dir={root / 'outputs'}",
+        f"tracking.uri=sqlite:///{root / 'mlflow.db'}",
+        # start the stiffness a decade too soft (the tiny torus's best log10 k is ~3): the
+        # dynamic stage has to find it, so "the loss decreases" means something
+        "physics.log10_k_init=2.0",
+        "recon.lr_log10_k=0.05",
+    ]
+    cfg = OmegaConf.to_object(compose(overrides))
+    return overrides, cfg, run_pipeline(cfg, progress=False)
+
+
+def test_dynamic_loss_decreases_and_beats_the_baseline(tiny_run):
+    _, _, out = tiny_run
+    m = out.metrics
+    assert m["dynamic_eval_loss_final"] < m["dynamic_eval_loss_initial"]
+    # issue 6's baseline: the better of "ballistic" and "held still" on the future frames
+    assert m["future_cd"] < m["baseline_future_cd"], (m["future_cd"], m["baseline_future_cd_by_variant"])
+    for key in ("fit_psnr", "fit_ssim", "fit_cd", "fit_emd", "future_psnr", "future_ssim", "future_emd"):
+        assert np.isfinite(m[key]), key
+
+
+def test_run_folder_holds_the_record(tiny_run):
+    _, _, out = tiny_run
+    d = out.run_dir
+    metrics = json.loads((d / "metrics.json").read_text())
+    assert metrics["future_cd"] == out.metrics["future_cd"]
+    assert (d / "config.yaml").exists()
+    for name in ("side_by_side.mp4", "future.mp4", "losses.png", "stiffness.png", "ply/centres_000.ply", "ply/anchors_000.ply"):
+        assert (d / "report" / name).stat().st_size > 0, name
+    assert (d / "asset" / "asset.json").exists()
+
+
+def test_rerun_skips_and_corruption_is_redone(tiny_run):
+    overrides, cfg, out = tiny_run
+    again = run_pipeline(cfg, progress=False)
+    assert set(again.metrics["stages_skipped"]) == set(STAGES)
+    assert again.metrics["future_cd"] == out.metrics["future_cd"]
+    params = out.run_dir / "dynamics" / "params.npz"
+    params.write_bytes(params.read_bytes()[:-10])  # truncated: a partial write
+    redo = run_pipeline(cfg, progress=False)
+    skipped = set(redo.metrics["stages_skipped"])
+    assert {"static", "anchors", "refine", "velocity"} <= skipped
+    assert "dynamics" not in skipped
+    assert redo.metrics["future_cd"] == pytest.approx(out.metrics["future_cd"], rel=1e-3)
+
+
+def test_simulate_new_conditions(tiny_run):
+    from sgdr.recon.asset import load_asset, simulate_asset
+    from sgdr.recon.config import SimulateConfig
+
+    overrides, cfg, out = tiny_run
+    asset = load_asset(out.run_dir / "asset")
+    # no gravity, no throw: the springs are at rest, so nothing moves
+    still, cams = simulate_asset(asset, SimulateConfig(gravity=[0, 0, 0], v0=[0, 0, 0], n_frames=4, cameras="orbit"), cfg.render)
+    assert len(cams) == 4 and still.images.shape[:2] == (4, 1)
+    assert np.abs(still.centres - still.centres[0]).max() < 1e-4
+    # the same drop onto a ground 0.05 lower ends 0.05 lower, resting on its ground
+    n = asset.ground_normal / np.linalg.norm(asset.ground_normal)
+    ends = {}
+    for dh in (0.0, -0.05):
+        pred, _ = simulate_asset(asset, SimulateConfig(ground_height=dh, n_frames=asset.n_frames), cfg.render)
+        heights = (pred.anchors - (asset.ground_point + dh * n)) @ n  # [T, N_A]
+        assert heights.min() > -1e-3
+        ends[dh] = float(heights[-1].mean() + dh)
+    assert ends[0.0] - ends[-0.05] == pytest.approx(0.05, abs=0.015)
+
+
+def test_drivers_run_on_the_tiny_preset(tiny_run):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    overrides, cfg, out = tiny_run
+    root = Path(__file__).resolve().parent.parent
+    common = overrides
+    rec = subprocess.run([sys.executable, "experiments/reconstruct.py", *common], cwd=root, capture_output=True, text=True)
+    assert rec.returncode == 0, rec.stderr[-2000:]
+    last = json.loads(rec.stdout.strip().splitlines()[-1])
+    assert last["demo"] == "torus" and last["future_cd"] == pytest.approx(out.metrics["future_cd"], rel=1e-3)
+    sim = subprocess.run(
+        [sys.executable, "experiments/simulate.py", *common, "recon.simulate.stiffness_scale=0.5", "recon.simulate.n_frames=3"],
+        cwd=root, capture_output=True, text=True,
+    )
+    assert sim.returncode == 0, sim.stderr[-2000:]
+    target = Path(json.loads(sim.stdout.strip().splitlines()[-1])["simulate"])
+    assert (target / "video.mp4").stat().st_size > 0 and (target / "trajectory.npz").exists()

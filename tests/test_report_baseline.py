@@ -1,0 +1,71 @@
+"""Report files (video, plots, PLY) and the physics-free baseline."""
+
+import numpy as np
+import pytest
+
+from sgdr.recon.baseline import physics_free_predictions
+from sgdr.recon.report import (
+    plot_losses,
+    plot_stiffness,
+    read_points_ply,
+    side_by_side,
+    tile,
+    write_frame_plys,
+    write_points_ply,
+    write_video,
+)
+
+
+def test_side_by_side_layout():
+    gt = [np.full((8, 10, 3), 1.0)] * 3
+    pred = [np.zeros((8, 10, 4))] * 3
+    frame = side_by_side(gt, pred, cols=3)
+    pair_w = 10 + 1 + 10
+    assert frame.shape == (8, 3 * pair_w + 2 * 4, 3) and frame.dtype == np.uint8
+    assert frame[0, 0, 0] == 255 and frame[0, 11, 0] == 0  # gt left, prediction right
+    assert tile([np.zeros((4, 4, 3))] * 5).shape == (2 * 4 + 2, 3 * 4 + 2 * 2, 3)
+
+
+def test_video_roundtrip(tmp_path):
+    import imageio.v3 as iio
+
+    frames = [np.full((15, 21, 3), i / 5.0) for i in range(5)]
+    path = write_video(tmp_path / "v.mp4", frames, fps=10)
+    back = iio.imread(path)
+    assert back.shape[0] == 5 and back.shape[1:3] == (16, 22)
+    assert abs(float(back[4, :15, :21].mean()) - 0.8 * 255) < 6  # grey levels survive H.264
+
+
+def test_plots_are_written(tmp_path, rng):
+    p = plot_losses(tmp_path / "loss.png", {"dynamic": [1.0, 0.5, 0.25]})
+    q = plot_stiffness(tmp_path / "k.png", rng.random((50, 3)), 3 + rng.random(50))
+    for f in (p, q):
+        assert f.stat().st_size > 5000 and f.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_ply_roundtrip(tmp_path, rng):
+    pts = rng.random((40, 3))
+    write_points_ply(tmp_path / "a.ply", pts, colors=rng.random((40, 3)))
+    np.testing.assert_allclose(read_points_ply(tmp_path / "a.ply"), pts, atol=1e-6)
+    paths = write_frame_plys(tmp_path / "frames", [pts, pts + 1], "centres")
+    assert [p.name for p in paths] == ["centres_000.ply", "centres_001.ply"]
+    np.testing.assert_allclose(read_points_ply(paths[1]), pts + 1, atol=1e-6)
+
+
+def test_baselines_follow_their_definitions():
+    last = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.2]])
+    prev = last - np.array([0.1, 0.0, 0.0])  # moved 0.1 in x over one frame
+    dt, g = 0.1, np.array([0.0, 0.0, -9.8])
+    out = physics_free_predictions(prev, last, 3, dt, g, np.zeros(3), np.array([0, 0, 1.0]))
+    np.testing.assert_allclose(out["still"][2], last)
+    np.testing.assert_allclose(out["constant_velocity"][1], last + [0.2, 0, 0])
+    t = 0.1
+    np.testing.assert_allclose(out["ballistic"][0], last + [0.1, 0, -0.5 * 9.8 * t * t])
+    # at t = 0.3 the parabola drops 0.441 and the lowest point (z = 1.0) stays above the ground
+    np.testing.assert_allclose(out["ballistic"][2][:, 2], last[:, 2] - 0.5 * 9.8 * 0.09)
+
+
+def test_baseline_is_kept_above_the_ground():
+    last = np.array([[0.0, 0.0, 0.05], [0.0, 0.0, 0.3]])
+    out = physics_free_predictions(last, last, 10, 0.1, np.array([0, 0, -9.8]), np.zeros(3), np.array([0, 0, 2.0]))
+    assert out["ballistic"][-1][:, 2] == pytest.approx([0.0, 0.25])

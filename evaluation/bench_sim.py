@@ -7,7 +7,8 @@ Measures, on the active Dr.Jit backend (LLVM by default):
   the timed calls, plus the kernels' own execution time from Dr.Jit's kernel history;
 - the float64 NumPy twin (sgdr/physics/reference.py) on the same systems in the same run,
   and the ratio;
-- gradient cost over forward cost: a `full`-mode rollout (2 frames x 100 substeps) with AD
+- gradient cost over forward cost (default `physics.adjoint="gather"`, and `"recorded"` for
+  comparison): a `full`-mode rollout (2 frames x 100 substeps) with AD
   recording plus `dr.backward` and the evaluation of the gradient, over the plain forward of the
   same rollout (after one warm-up of each, so kernel compilation is not counted);
 - peak memory of a 20-frame x 100-substep `full` gradient at paper scale, measured in a fresh
@@ -89,12 +90,12 @@ def _numpy_twin(n_anchors: int, n_k: int, n_steps: int) -> float:
     return n_anchors * n_k / statistics.median(times[1:])
 
 
-def _gradient_ratio(n_anchors: int, n_k: int, n_frames: int) -> dict:
+def _gradient_ratio(n_anchors: int, n_k: int, n_frames: int, adjoint: str) -> dict:
     import drjit as dr
 
     from sgdr.physics import SimState, rollout
 
-    cfg, model, params, state, ground = _system(n_anchors, n_k)
+    cfg, model, params, state, ground = _system(n_anchors, n_k, adjoint=adjoint)
 
     def run(grad: bool):
         p = params.detach()
@@ -164,8 +165,10 @@ def run() -> dict:
     log("numpy twin")
     np_big = _numpy_twin(2048, 256, n_steps=3)
     np_small = _numpy_twin(512, 64, n_steps=5)
-    log("gradient / forward (2 frames x 100 substeps, full)")
-    grad = _gradient_ratio(2048, 256, n_frames=2)
+    log("gradient / forward (2 frames x 100 substeps, full), gather adjoint (default)")
+    grad = _gradient_ratio(2048, 256, n_frames=2, adjoint="gather")
+    log("gradient / forward, recorded AD of the spring loop (the reference)")
+    grad_rec = _gradient_ratio(2048, 256, n_frames=2, adjoint="recorded")
     log("peak memory (20 frames x 100 substeps, full, child process)")
     mem = _peak_memory(2048, 256, n_frames=20)
     return {
@@ -186,6 +189,9 @@ def run() -> dict:
         "forward_s": grad["forward_s"],
         "forward_recording_s": grad["forward_recording_s"],
         "backward_s": grad["backward_s"],
+        "grad_over_forward_recorded": grad_rec["grad_over_forward"],
+        "backward_s_recorded": grad_rec["backward_s"],
+        "forward_recording_s_recorded": grad_rec["forward_recording_s"],
         "threads": b.threads,
         "load_avg_1min": os.getloadavg()[0],
     }

@@ -52,6 +52,19 @@ def _pow(a, p: float):
     return dr.power(a, p)
 
 
+def _pow_and_slope(a, p: float):
+    """(a^p, d(a^p)/da) for a > 0 and a Python-float exponent, the same operations as `_pow`."""
+    if p == 0.0:
+        return 1.0, 0.0
+    if p == 1.0:
+        return a, 1.0
+    if p == 0.5:
+        r = dr.sqrt(a)
+        return r, 0.5 * dr.rcp(r)
+    r = dr.power(a, p)
+    return r, p * r * dr.rcp(a)
+
+
 @SPRING_LAWS.register("paper")
 def law_paper(dl, inv_l, p_k: float, eps: float):
     """Eq. 8 as printed: g = Δl |Δl|^p_k (|Δl| floored at eps so the gradient stays finite)."""
@@ -62,6 +75,26 @@ def law_paper(dl, inv_l, p_k: float, eps: float):
 def law_official(dl, inv_l, p_k: float, eps: float):
     """Official code: g = Δl (1 + |Δl| / l_ij)^p_k, i.e. Hookean times (1 + |strain|)^p_k."""
     return dl * _pow(1.0 + dr.abs(dl) * inv_l, p_k)
+
+
+# (g, dg/dΔl) of each law, for the hand-written adjoint (sgdr/physics/adjoint.py); same arguments.
+SPRING_LAW_SLOPES = Registry("spring law")
+
+
+@SPRING_LAW_SLOPES.register("paper")
+def law_paper_slope(dl, inv_l, p_k: float, eps: float):
+    """g = Δl m^p_k with m = max(|Δl|, eps): g' = m^p_k + |Δl| p_k m^(p_k - 1) where |Δl| > eps."""
+    a = dr.abs(dl)
+    m_p, m_p_slope = _pow_and_slope(dr.maximum(a, eps), p_k)
+    return dl * m_p, m_p + dr.select(a > eps, a * m_p_slope, 0.0)
+
+
+@SPRING_LAW_SLOPES.register("official")
+def law_official_slope(dl, inv_l, p_k: float, eps: float):
+    """g = Δl q^p_k with q = 1 + |Δl| / l_ij: g' = q^p_k + |Δl| / l_ij p_k q^(p_k - 1)."""
+    a = dr.abs(dl)
+    q_p, q_p_slope = _pow_and_slope(1.0 + a * inv_l, p_k)
+    return dl * q_p, q_p + a * inv_l * q_p_slope
 
 
 # --------------------------------------------------------------------------------------------
@@ -80,6 +113,23 @@ def stiffness_harmonic(k_i, k_j):
 def stiffness_arithmetic(k_i, k_j):
     """(k_i + k_j) / 2."""
     return 0.5 * (k_i + k_j)
+
+
+# (∂k_s/∂k_i, ∂k_s/∂k_j) of each symmetric stiffness, for the hand-written adjoint.
+SYMMETRIC_STIFFNESS_PARTIALS = Registry("symmetric-spring stiffness")
+
+
+@SYMMETRIC_STIFFNESS_PARTIALS.register("harmonic")
+def stiffness_harmonic_partials(k_i, k_j):
+    """(2 k_j² / (k_i + k_j)², 2 k_i² / (k_i + k_j)²)."""
+    w = 2.0 * dr.square(dr.rcp(k_i + k_j))
+    return w * dr.square(k_j), w * dr.square(k_i)
+
+
+@SYMMETRIC_STIFFNESS_PARTIALS.register("arithmetic")
+def stiffness_arithmetic_partials(k_i, k_j):
+    """(1/2, 1/2)."""
+    return 0.5, 0.5
 
 
 # --------------------------------------------------------------------------------------------
@@ -107,6 +157,13 @@ def soft_vector_eta(softplus_kappa, exponent):
     """η = clamp(2 - exp(softplus(κ) e_j), 0, 1) where e_j > 0, else 1 (Eq. 15)."""
     eta = dr.clip(2.0 - dr.exp(softplus_kappa * exponent), 0.0, 1.0)
     return dr.select(exponent > 0, eta, 1.0)
+
+
+def soft_vector_eta_slope(softplus_kappa, exponent):
+    """dη/d softplus(κ) = -e_j exp(softplus(κ) e_j) where η is strictly inside (0, 1), else 0."""
+    p = dr.exp(softplus_kappa * exponent)
+    inside = (exponent > 0) & (p > 1.0) & (p < 2.0)
+    return dr.select(inside, -exponent * p, 0.0)
 
 
 # --------------------------------------------------------------------------------------------

@@ -22,29 +22,38 @@ Springs (config `physics.springs`):
   rounding.
 Damping (Eq. 9) uses ζ_ij = ζ0 / l_ij (Eq. 17) along the spring direction, without η.
 
-Gradients (how the loop is differentiated)
-------------------------------------------
-Recorded AD. Each substep is one AD node around the sum loop: Dr.Jit differentiates a
-`max_iterations=-1` loop by re-running its body in the backward pass, so the per-spring
-intermediates (N_A x n_k per substep) are never stored. The tape keeps O(N_A) per substep:
-at most x and v (24 bytes per anchor and substep; tests/test_physics_memory.py measures a
-marginal 12 B on the LLVM backend), independent of n_k. A `full` gradient therefore costs
-<= n_frames x n_t x N_A x 24 B: 98 MB at paper scale for 20 frames x 100 substeps (295 MB at
-30 x 200); the process peak is measured by evaluation/bench_sim.py (README "Simulator"),
-far under the 4 GiB bar. So neither per-frame checkpointing (recompute a frame inside the
-backward) nor a hand-written adjoint is needed for memory.
+Gradients (how the loop is differentiated): `physics.adjoint`
+----------------------------------------------------------------
+Only the spring sum needs a choice; the Euler update and the contact (cheap per-anchor ops,
+Eqs. 11-13) are always recorded AD, and so are k_i = 10^log10_k_i and softplus(κ).
+- `gather` (default): the spring sum is one `dr.CustomOp` per substep (sgdr/physics/adjoint.py)
+  whose backward is written by hand: for each anchor, a per-anchor sum loop over its outgoing
+  springs and a second one over the springs that point at it (`in_spring` / `in_offset`
+  lists), each recomputing the spring's local adjoint from x, v, k: gathers only, no atomics,
+  two loop kernels per substep. sp = softplus(κ) and ζ0 enter the op broadcast to N_A so that
+  their per-anchor adjoints are reduced by Dr.Jit's broadcast.
+- `recorded` (the reference, tests compare the two): recorded AD through the sum loop. Dr.Jit
+  differentiates a `max_iterations=-1` loop by re-running its body in the backward pass, so
+  the per-spring intermediates are never stored either; but it runs 7-8 loop-sized reverse
+  kernels per substep at 2048 x 256 (apparently one replay per differentiable input the loop
+  reads), each turning the gathers of x_j, v_j (and k_j) into atomic scatter-adds.
+Both evaluate the spring force f together with x, v once per substep (`dr.eval(x, v, f)`):
+the contact's backward re-reads the pre-contact x, v, and with f unevaluated it re-ran and
+re-compiled the spring loop for every substep of the backward.
+
+Memory: per anchor and substep the tape keeps x, v and f (36 bytes; the gather op holds its
+inputs x, v; tests/test_physics_memory.py measures 36-40 B marginal on LLVM for both
+adjoints), nothing per spring, so independent of n_k. A `full` gradient therefore costs about
+n_frames x n_t x N_A x 40 B: 164 MB at paper scale for 20 frames x 100 substeps x 2048 anchors
+(490 MB at 30 x 200); the process peak is measured by evaluation/bench_sim.py (README
+"Simulator"), far under the 4 GiB bar. So no per-frame checkpointing is needed for memory.
 
 `truncated` (official) starts every frame after the first from the detached previous state:
 the gradient is Σ_f ∂L/∂x_f · ∂Φ(θ, stop_grad(x_{f-1}))/∂θ, and frame 1 still starts from
 `state0` as given, so v0 receives the gradient of the first frame. Its tape is the same size
 as long as the loss over all frames is built before `dr.backward` (as the pipeline does).
 
-Cost: the backward is the weak point. Dr.Jit runs 7-8 loop-sized reverse kernels per substep
-at 2048 x 256 (apparently one replay per differentiable input the loop reads), each with
-atomic scatter-adds for the gathers of x_j, v_j (and k_j); measured, gradient / forward is
-about 15-20 (README "Simulator"). The lever is a hand-written, gather-only
-adjoint per substep (a `dr.CustomOp` whose backward loops over each anchor's outgoing and
-incoming springs, the `in_spring` lists, and accumulates without atomics).
+Cost: measured gradient / forward at 2048 x 256 for both adjoints: README "Simulator".
 """
 
 from __future__ import annotations
@@ -55,6 +64,7 @@ import drjit as dr
 import numpy as np
 
 from sgdr.backend import ad
+from sgdr.physics.adjoint import spring_forces
 from sgdr.physics.config import PhysicsConfig
 from sgdr.physics.laws import (
     CONTACTS,
@@ -176,6 +186,26 @@ def springs_symmetric(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig
     return f_out + f_in
 
 
+# How the spring sum is differentiated (`physics.adjoint`, see the module docstring):
+# (model, x, v, k, sp, zeta0, cfg) -> Array3f [N_A].
+ADJOINTS = Registry("spring-force adjoint")
+
+
+@ADJOINTS.register("recorded")
+def forces_recorded(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig):
+    """Recorded AD through the forward sum loop (the reference)."""
+    return SPRINGS.get_named(cfg.springs, "physics.springs")(model, x, v, k, sp, zeta0, cfg)
+
+
+@ADJOINTS.register("gather")
+def forces_gather(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig):
+    """The same forward; hand-written gather-only adjoint (sgdr/physics/adjoint.py)."""
+    forward = SPRINGS.get_named(cfg.springs, "physics.springs")
+    if not dr.grad_enabled(x, v, k, sp, zeta0):
+        return forward(model, x, v, k, sp, zeta0, cfg)
+    return spring_forces(model, x, v, k, sp, zeta0, cfg, forward)
+
+
 # --------------------------------------------------------------------------------------------
 # Checks
 # --------------------------------------------------------------------------------------------
@@ -271,14 +301,16 @@ def _frame_constants(model: SpringModel, params: PhysParams, ground: Ground):
 
 def substep(model: SpringModel, params: PhysParams, state: SimState, ground_c: dict, dt: float, cfg: PhysicsConfig) -> SimState:
     """One semi-implicit Euler substep (Eqs. 10-13); `ground_c` from `_frame_constants`."""
-    springs = SPRINGS.get_named(cfg.springs, "physics.springs")
+    springs = ADJOINTS.get_named(cfg.adjoint, "physics.adjoint")
     contact = CONTACTS.get_named(cfg.contact, "physics.contact")
     c = ground_c
     f = springs(model, state.x, state.v, c["k"], c["sp"], params.zeta0, cfg)
     v = state.v + dt * (f * c["inv_m"] + params.gravity)  # Eq. 11
     x = state.x + dt * v  # Eq. 12
     x, v = contact(x, v, c["point"], c["normal"], params, dt, c["g_norm"], cfg)  # Eq. 13
-    dr.eval(x, v)
+    # f too, in the same kernel: the contact's backward re-reads the pre-contact x, v, which
+    # would otherwise re-run (and re-compile) the spring loop for every substep
+    dr.eval(x, v, f)
     return SimState(x=x, v=v)
 
 

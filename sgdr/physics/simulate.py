@@ -26,7 +26,7 @@ Gradients (how the loop is differentiated): `physics.adjoint`
 ----------------------------------------------------------------
 Only the spring sum needs a choice; the Euler update and the contact (cheap per-anchor ops,
 Eqs. 11-13) are always recorded AD, and so are k_i = 10^log10_k_i and softplus(κ).
-- `gather` (default): the spring sum is one `dr.CustomOp` per substep (sgdr/physics/adjoint.py)
+- `gather` (opt-in; superlinear in the number of frames in `full` mode, see README): the spring sum is one `dr.CustomOp` per substep (sgdr/physics/adjoint.py)
   whose backward is written by hand: for each anchor, a per-anchor sum loop over its outgoing
   springs and a second one over the springs that point at it (`in_spring` / `in_offset`
   lists), each recomputing the spring's local adjoint from x, v, k: gathers only, no atomics,

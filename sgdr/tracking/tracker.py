@@ -35,13 +35,10 @@ def flatten_config(cfg: Any, prefix: str = "") -> dict[str, Any]:
 
     if is_dataclass(cfg) and not isinstance(cfg, type):
         cfg = asdict(cfg)
-    try:  # OmegaConf containers -> plain Python
-        from omegaconf import DictConfig, ListConfig, OmegaConf
+    from omegaconf import DictConfig, ListConfig, OmegaConf  # OmegaConf containers -> plain Python
 
-        if isinstance(cfg, (DictConfig, ListConfig)):
-            cfg = OmegaConf.to_container(cfg, resolve=True)
-    except ImportError:  # pragma: no cover - hydra (and so omegaconf) is a dependency
-        pass
+    if isinstance(cfg, (DictConfig, ListConfig)):
+        cfg = OmegaConf.to_container(cfg, resolve=True)
     out: dict[str, Any] = {}
     if isinstance(cfg, Mapping):
         for key, value in cfg.items():

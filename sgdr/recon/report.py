@@ -69,6 +69,18 @@ def write_video(path, frames: Sequence[np.ndarray], fps: float) -> Path:
 
 
 # ------------------------------------------------------------------------------ plots
+
+def _save_figure(fig, path) -> Path:
+    """Lay out, write (creating the folder) and close a matplotlib figure; return its path."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
 def plot_losses(path, curves: Mapping[str, Sequence[float]], title: str = "losses") -> Path:
     """One line per named curve against its step index (log y when all values are > 0)."""
     import matplotlib
@@ -89,12 +101,7 @@ def plot_losses(path, curves: Mapping[str, Sequence[float]], title: str = "losse
     ax.set_ylabel("loss")
     ax.set_title(title)
     ax.legend()
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save_figure(fig, path)
 
 
 def plot_stiffness(path, anchors: np.ndarray, log10_k: np.ndarray, up: np.ndarray | None = None) -> Path:
@@ -116,12 +123,7 @@ def plot_stiffness(path, anchors: np.ndarray, log10_k: np.ndarray, up: np.ndarra
     ax2.hist(log10_k, bins=30)
     ax2.set_xlabel("log10 k_i")
     ax2.set_ylabel("anchors")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save_figure(fig, path)
 
 
 # ------------------------------------------------------------------------------ PLY

@@ -10,7 +10,8 @@ Measures, on the active Dr.Jit backend (LLVM by default):
 - gradient cost over forward cost (default `physics.adjoint="gather"`, and `"recorded"` for
   comparison): a `full`-mode rollout (2 frames x 100 substeps) with AD
   recording plus `dr.backward` and the evaluation of the gradient, over the plain forward of the
-  same rollout (after one warm-up of each, so kernel compilation is not counted);
+  same rollout (after one warm-up of each, so kernel compilation is not counted); the same
+  for 6 frames with the default adjoint, so a cost that grows faster than the frames shows;
 - peak memory of a 20-frame x 100-substep `full` gradient at paper scale, measured in a fresh
   child process as its peak resident set size (`resource.getrusage(RUSAGE_SELF).ru_maxrss`),
   with the child's RSS before the rollout reported next to it.
@@ -167,6 +168,8 @@ def run() -> dict:
     np_small = _numpy_twin(512, 64, n_steps=5)
     log("gradient / forward (2 frames x 100 substeps, full), gather adjoint (default)")
     grad = _gradient_ratio(2048, 256, n_frames=2, adjoint="gather")
+    log("gradient / forward (6 frames x 100 substeps, full), gather adjoint")
+    grad6 = _gradient_ratio(2048, 256, n_frames=6, adjoint="gather")
     log("gradient / forward, recorded AD of the spring loop (the reference)")
     grad_rec = _gradient_ratio(2048, 256, n_frames=2, adjoint="recorded")
     log("peak memory (20 frames x 100 substeps, full, child process)")
@@ -189,6 +192,8 @@ def run() -> dict:
         "forward_s": grad["forward_s"],
         "forward_recording_s": grad["forward_recording_s"],
         "backward_s": grad["backward_s"],
+        "grad_over_forward_6_frames": grad6["grad_over_forward"],
+        "backward_s_6_frames": grad6["backward_s"],
         "grad_over_forward_recorded": grad_rec["grad_over_forward"],
         "backward_s_recorded": grad_rec["backward_s"],
         "forward_recording_s_recorded": grad_rec["forward_recording_s"],

@@ -23,7 +23,7 @@ class PhysicsConfig:
     retry_on_nan: bool = True  # the official remedy: rerun a frame with 2x substeps after NaN
     cfl_factor: float = 1.4  # stability bound checked before running: dt <= cfl_factor * sqrt(m / k_eff)
     grad_mode: str = "truncated"  # "full" (through all frames) | "truncated" (per frame, detached)
-    adjoint: str = "recorded"  # spring-force gradient: "recorded" (AD of the loop; default) | "gather" (hand-written, no atomics; 4.7x vs 8.0x forward for one frame, but superlinear over many frames in full mode: see README)
+    adjoint: str = "gather"  # how a rollout is differentiated: "gather" (one custom op per frame, hand-written gather-only backward; default) | "recorded" (recorded AD of every substep, the reference)
     m0: float = 1.0  # anchor mass m_i = m0
     zeta0: float = 0.1  # ζ0, damping coefficient (ζ_ij = ζ0 / l_ij, Eq. 17)
     p_k: float = 0.5  # exponent of the nonlinear spring factor (Eq. 8)

@@ -22,28 +22,32 @@ Springs (config `physics.springs`):
   rounding.
 Damping (Eq. 9) uses ζ_ij = ζ0 / l_ij (Eq. 17) along the spring direction, without η.
 
-Gradients (how the loop is differentiated): `physics.adjoint`
-----------------------------------------------------------------
-Only the spring sum needs a choice; the Euler update and the contact (cheap per-anchor ops,
-Eqs. 11-13) are always recorded AD, and so are k_i = 10^log10_k_i and softplus(κ).
-- `gather` (opt-in; superlinear in the number of frames in `full` mode, see README): the spring sum is one `dr.CustomOp` per substep (sgdr/physics/adjoint.py)
-  whose backward is written by hand: for each anchor, a per-anchor sum loop over its outgoing
-  springs and a second one over the springs that point at it (`in_spring` / `in_offset`
-  lists), each recomputing the spring's local adjoint from x, v, k: gathers only, no atomics,
-  two loop kernels per substep. sp = softplus(κ) and ζ0 enter the op broadcast to N_A so that
-  their per-anchor adjoints are reduced by Dr.Jit's broadcast.
-- `recorded` (the reference, tests compare the two): recorded AD through the sum loop. Dr.Jit
-  differentiates a `max_iterations=-1` loop by re-running its body in the backward pass, so
-  the per-spring intermediates are never stored either; but it runs 7-8 loop-sized reverse
-  kernels per substep at 2048 x 256 (apparently one replay per differentiable input the loop
-  reads), each turning the gathers of x_j, v_j (and k_j) into atomic scatter-adds.
-Both evaluate the spring force f together with x, v once per substep (`dr.eval(x, v, f)`):
-the contact's backward re-reads the pre-contact x, v, and with f unevaluated it re-ran and
-re-compiled the spring loop for every substep of the backward.
+Gradients (how a frame is differentiated): `physics.adjoint`
+-----------------------------------------------------------
+k_i = 10^log10_k_i and softplus(κ) are always recorded AD (once per frame). The substeps:
+- `gather` (default): the n_t substeps of a frame are one `dr.CustomOp`
+  (sgdr/physics/adjoint.py). Its forward keeps each substep's x, v and spring force f; its
+  backward walks the substeps in reverse: the Euler update and contact by recorded AD of a
+  throw-away graph on the taped values (a few elementwise operations), the spring sum by a
+  hand-written adjoint: for each anchor, a per-anchor sum loop over its outgoing springs and a
+  second one over the springs that point at it (`in_spring` / `in_offset` lists), each
+  recomputing the spring's local adjoint from x, v, k: gathers only, no atomics. sp =
+  softplus(κ), ζ0, g, μ, e enter the op broadcast to N_A so that their per-anchor adjoints
+  are reduced by Dr.Jit's broadcast, once per frame. The outer AD graph holds one node per
+  frame; a custom op per substep (the first version) made Dr.Jit's graph traversal grow
+  faster than the number of frames.
+- `recorded` (the reference, tests compare the two): recorded AD through every substep.
+  Dr.Jit differentiates a `max_iterations=-1` loop by re-running its body in the backward
+  pass, so the per-spring intermediates are never stored either; but it runs 7-8 loop-sized
+  reverse kernels per substep at 2048 x 256 (apparently one replay per differentiable input
+  the loop reads), each turning the gathers of x_j, v_j (and k_j) into atomic scatter-adds.
+  With gradients enabled it evaluates f together with x, v once per substep (`dr.eval(x, v,
+  f)`): the contact's backward re-reads the pre-contact x, v, and with f unevaluated it re-ran
+  and re-compiled the spring loop for every substep of the backward. Without gradients a
+  substep is one kernel and f is never stored.
 
-Memory: per anchor and substep the tape keeps x, v and f (36 bytes; the gather op holds its
-inputs x, v; tests/test_physics_memory.py measures 36-40 B marginal on LLVM for both
-adjoints), nothing per spring, so independent of n_k. A `full` gradient therefore costs about
+Memory: per anchor and substep the tape keeps x, v and f (36 bytes; the gather op's own tape;
+tests/test_physics_memory.py measures 36-40 B marginal on LLVM for both adjoints), nothing per spring, so independent of n_k. A `full` gradient therefore costs about
 n_frames x n_t x N_A x 40 B: 164 MB at paper scale for 20 frames x 100 substeps x 2048 anchors
 (490 MB at 30 x 200); the process peak is measured by evaluation/bench_sim.py (README
 "Simulator"), far under the 4 GiB bar. So no per-frame checkpointing is needed for memory.
@@ -64,7 +68,7 @@ import drjit as dr
 import numpy as np
 
 from sgdr.backend import ad
-from sgdr.physics.adjoint import spring_forces
+from sgdr.physics.adjoint import frame_gather
 from sgdr.physics.config import PhysicsConfig
 from sgdr.physics.laws import (
     CONTACTS,
@@ -186,26 +190,6 @@ def springs_symmetric(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig
     return f_out + f_in
 
 
-# How the spring sum is differentiated (`physics.adjoint`, see the module docstring):
-# (model, x, v, k, sp, zeta0, cfg) -> Array3f [N_A].
-ADJOINTS = Registry("spring-force adjoint")
-
-
-@ADJOINTS.register("recorded")
-def forces_recorded(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig):
-    """Recorded AD through the forward sum loop (the reference)."""
-    return SPRINGS.get_named(cfg.springs, "physics.springs")(model, x, v, k, sp, zeta0, cfg)
-
-
-@ADJOINTS.register("gather")
-def forces_gather(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig):
-    """The same forward; hand-written gather-only adjoint (sgdr/physics/adjoint.py)."""
-    forward = SPRINGS.get_named(cfg.springs, "physics.springs")
-    if not dr.grad_enabled(x, v, k, sp, zeta0):
-        return forward(model, x, v, k, sp, zeta0, cfg)
-    return spring_forces(model, x, v, k, sp, zeta0, cfg, forward)
-
-
 # --------------------------------------------------------------------------------------------
 # Checks
 # --------------------------------------------------------------------------------------------
@@ -299,18 +283,65 @@ def _frame_constants(model: SpringModel, params: PhysParams, ground: Ground):
     }
 
 
-def substep(model: SpringModel, params: PhysParams, state: SimState, ground_c: dict, dt: float, cfg: PhysicsConfig) -> SimState:
-    """One semi-implicit Euler substep (Eqs. 10-13); `ground_c` from `_frame_constants`."""
-    springs = ADJOINTS.get_named(cfg.adjoint, "physics.adjoint")
+class _Boundary:
+    """The contact's view of the parameters (friction μ, restitution e)."""
+
+    def __init__(self, friction, restitution):
+        self.friction, self.restitution = friction, restitution
+
+
+def euler_contact(x, v, f, gravity, friction, restitution, consts, dt: float, cfg: PhysicsConfig):
+    """Eqs. 11-13 given the spring force f: semi-implicit Euler, then ground contact.
+    consts = (inv_m, plane point, plane normal, |g|) from `_frame_constants`."""
+    inv_m, point, normal, g_norm = consts
     contact = CONTACTS.get_named(cfg.contact, "physics.contact")
+    v = v + dt * (f * inv_m + gravity)  # Eq. 11
+    x = x + dt * v  # Eq. 12
+    return contact(x, v, point, normal, _Boundary(friction, restitution), dt, g_norm, cfg)  # Eq. 13
+
+
+def _contact_consts(c: dict):
+    return c["inv_m"], c["point"], c["normal"], c["g_norm"]
+
+
+def substep(model: SpringModel, params: PhysParams, state: SimState, ground_c: dict, dt: float, cfg: PhysicsConfig) -> SimState:
+    """One semi-implicit Euler substep (Eqs. 10-13), recorded AD; `ground_c` from `_frame_constants`."""
+    springs = SPRINGS.get_named(cfg.springs, "physics.springs")
     c = ground_c
     f = springs(model, state.x, state.v, c["k"], c["sp"], params.zeta0, cfg)
-    v = state.v + dt * (f * c["inv_m"] + params.gravity)  # Eq. 11
-    x = state.x + dt * v  # Eq. 12
-    x, v = contact(x, v, c["point"], c["normal"], params, dt, c["g_norm"], cfg)  # Eq. 13
-    # f too, in the same kernel: the contact's backward re-reads the pre-contact x, v, which
-    # would otherwise re-run (and re-compile) the spring loop for every substep
-    dr.eval(x, v, f)
+    x, v = euler_contact(state.x, state.v, f, params.gravity, params.friction, params.restitution,
+                         _contact_consts(c), dt, cfg)
+    if dr.grad_enabled(f):
+        # f too, in the same kernel: the contact's backward re-reads the pre-contact x, v, which
+        # would otherwise re-run (and re-compile) the spring loop for every substep
+        dr.eval(x, v, f)
+    else:
+        dr.eval(x, v)  # no gradient: the whole substep is one kernel and f is never stored
+    return SimState(x=x, v=v)
+
+
+# How a frame's substeps are differentiated (`physics.adjoint`, see the module docstring):
+# (model, params, state, constants, dt, n_substeps, cfg) -> SimState.
+ADJOINTS = Registry("spring-mass adjoint")
+
+
+@ADJOINTS.register("recorded")
+def substeps_recorded(model, params, state, c, dt, n_substeps, cfg):
+    """Recorded AD through every substep (the reference)."""
+    for _ in range(n_substeps):
+        state = substep(model, params, state, c, dt, cfg)
+    return state
+
+
+@ADJOINTS.register("gather")
+def substeps_gather(model, params, state, c, dt, n_substeps, cfg):
+    """One custom op per frame with a hand-written backward (sgdr/physics/adjoint.py)."""
+    diff = (state.x, state.v, c["k"], c["sp"], params.zeta0, params.gravity, params.friction, params.restitution)
+    if not dr.grad_enabled(*diff):
+        return substeps_recorded(model, params, state, c, dt, n_substeps, cfg)
+    springs = SPRINGS.get_named(cfg.springs, "physics.springs")
+    CONTACTS.get_named(cfg.contact, "physics.contact")  # fail here, naming the setting
+    x, v = frame_gather(model, *diff, _contact_consts(c), dt, n_substeps, cfg, springs, euler_contact)
     return SimState(x=x, v=v)
 
 
@@ -330,9 +361,8 @@ def simulate_frame(
     if check:
         check_inputs(model, params, state, dt_frame, n_substeps, cfg)
     dt = float(dt_frame) / int(n_substeps)
-    c = _frame_constants(model, params, ground)
-    for _ in range(int(n_substeps)):
-        state = substep(model, params, state, c, dt, cfg)
+    stepper = ADJOINTS.get_named(cfg.adjoint, "physics.adjoint")
+    state = stepper(model, params, state, _frame_constants(model, params, ground), dt, int(n_substeps), cfg)
     if check and not bool(dr.all(dr.isfinite(dr.detach(state.x)) & dr.isfinite(dr.detach(state.v)), axis=None)):
         raise SimulationUnstable(
             f"NaN/inf after {n_substeps} substeps of {dt:.3g} s (physics.n_substeps={n_substeps}, "

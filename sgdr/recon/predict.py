@@ -46,7 +46,11 @@ def physical_params(model, physics_cfg, values: dict):
     for name in ("kappa", "friction", "restitution", "zeta0"):
         if name in values:
             fields[name] = t.Float(float(values[name]))
-    return replace(p, **fields)
+    p = replace(p, **fields)
+    # memory-backed like PhysParams.init's: a literal is baked into the kernels (a recompile
+    # per value), and a literal friction of exactly 0 came back 512 wide from a rollout
+    dr.make_opaque(p)
+    return p
 
 
 def predict(model, params, binding, gaussians, ground, n_frames: int, fps: float, n_substeps: int, physics_cfg, cameras: list, render_cfg, render_views: bool = True, progress: bool = False) -> Prediction:

@@ -328,7 +328,7 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
     def evaluate_produce(out: Path, ckpt) -> None:
         from sgdr.recon.evaluate import evaluate_prediction
 
-        scores = evaluate_prediction(pred, seq, with_emd=cfg.recon.eval_emd, seed=cfg.seed)
+        scores = evaluate_prediction(pred, seq, with_emd=cfg.recon.eval_emd, seed=cfg.seed, workers=cfg.recon.eval_workers)
         (out / "scores.json").write_text(json.dumps(scores, indent=1, default=float))
 
     stages["evaluate"] = runner.run(

@@ -121,6 +121,7 @@ def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> Run
 
     t_start = time.time()
     seq_root = ensure_sequence(cfg)
+    t_sequence = time.time() - t_start  # generation when the sequence was missing
     seq = load_sequence(seq_root)
     name = default_run_name(cfg)
     run_dir = Path(run_dir) if run_dir is not None else Path(cfg.recon.output_dir) / name
@@ -147,6 +148,7 @@ def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> Run
                     "v0": list(out.stages["velocity"].value["v0"]),
                 },
                 "stages_skipped": [n for n, r in out.stages.items() if r.skipped],
+                "stage_seconds": {"sequence": t_sequence, **{n: r.seconds for n, r in out.stages.items()}},
                 "minutes": (time.time() - t_start) / 60.0,
             }
         )

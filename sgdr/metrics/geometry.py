@@ -92,7 +92,9 @@ def earth_movers_distances(pairs, n_points: int = EMD_POINTS, seed: int = 0, wor
     and the same exact assignment, one pair per task. The exact assignment of 2048 points
     takes 1-6 s on one core (scipy's solver is single-threaded), so a 30-frame sequence is
     the slowest part of evaluation; processes (spawned, so a parent's Dr.Jit threads are not
-    forked) are the only way to use more than one core for it.
+    forked) are the only way to use more than one core for it. As with any spawned worker,
+    a calling script must guard its top level with `if __name__ == "__main__":` (the
+    `experiments/` drivers do), or each worker re-runs it.
     """
     tasks = [(_as_points(a, "emd pred"), _as_points(b, "emd gt"), int(n_points), int(seed)) for a, b in pairs]
     if workers <= 0:

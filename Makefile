@@ -12,6 +12,7 @@ help:
 	@echo "make bench      run benchmarks, one JSON line each (BENCH=sim|render|... for one)"
 	@echo "make data       generate the 7-object benchmark at the small preset into data/"
 	@echo "make demo       generate + reconstruct + predict + evaluate the torus (small preset)"
+	@echo "make reproduce  the README's seven-object table: every object at the small preset, then the table"
 
 setup:
 	bash scripts/setup.sh
@@ -31,6 +32,17 @@ data:
 # the official per-substep projection (README, "Measured on the small torus").
 demo:
 	$(PYTHON) experiments/reconstruct.py preset=small synth.object=torus physics.contact=coulomb
+
+# The README's seven-object table: generate (or reuse) and reconstruct every object at the small
+# preset one after another (Hydra multirun, basic launcher: one process), then print the table.
+OBJECTS ?= torus cross cream apple paste chess banana
+comma := ,
+empty :=
+space := $(empty) $(empty)
+reproduce:
+	$(PYTHON) experiments/reconstruct.py -m preset=$(PRESET) physics.contact=coulomb \
+		synth.object=$(subst $(space),$(comma),$(OBJECTS))
+	$(PYTHON) -m evaluation.table $(foreach o,$(OBJECTS),outputs/$(o)_$(PRESET)_s0)
 
 clean:
 	rm -rf outputs multirun .pytest_cache

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from skimage.metrics import peak_signal_noise_ratio
 
-from sgdr.metrics import chamfer_distance, earth_movers_distance, psnr, ssim, subsample
+from sgdr.metrics import chamfer_distance, earth_movers_distance, earth_movers_distances, psnr, ssim, subsample
 
 
 def _grid(n: int, h: float) -> np.ndarray:
@@ -48,6 +48,16 @@ def test_emd_matches_brute_force_over_permutations(rng):
         cost = np.linalg.norm(a[:, None] - b[None], axis=-1)
         best = min(cost[np.arange(6), list(p)].mean() for p in itertools.permutations(range(6)))
         assert earth_movers_distance(a, b) == pytest.approx(best, rel=1e-12)
+
+
+def test_emd_of_many_pairs_on_workers_equals_the_serial_calls(rng):
+    # Subsampling included (600 > n_points): the workers must draw the same seeded subsets.
+    pairs = [(rng.random((600, 3)), rng.random((500, 3)) + 0.1 * k) for k in range(3)]
+    serial = [earth_movers_distance(a, b, n_points=256, seed=2) for a, b in pairs]
+    assert earth_movers_distances(pairs, n_points=256, seed=2, workers=2) == serial
+    assert earth_movers_distances(pairs, n_points=256, seed=2, workers=1) == serial
+    with pytest.raises(ValueError, match="emd gt"):
+        earth_movers_distances([(pairs[0][0], np.zeros((0, 3)))], workers=2)
 
 
 def test_metrics_name_bad_input():

@@ -48,6 +48,9 @@ def test_run_folder_holds_the_record(tiny_run):
     d = out.run_dir
     metrics = json.loads((d / "metrics.json").read_text())
     assert metrics["future_cd"] == out.metrics["future_cd"]
+    # where the minutes go: every stage's wall time, plus finding/generating the sequence
+    assert set(metrics["stage_seconds"]) == {"sequence", *STAGES}
+    assert 0 < sum(metrics["stage_seconds"].values()) <= 60 * metrics["minutes"]
     assert (d / "config.yaml").exists()
     for name in ("side_by_side.mp4", "future.mp4", "losses.png", "stiffness.png", "ply/centres_000.ply", "ply/anchors_000.ply"):
         assert (d / "report" / name).stat().st_size > 0, name

@@ -5,7 +5,7 @@ generator's particles, both `np.ndarray [N, 3]` in scene units (the benchmark's 
 Images (`image.py`): `np.ndarray [H, W, 3]` RGB in [0, 1].
 """
 
-from sgdr.metrics.geometry import chamfer_distance, earth_movers_distance, subsample
+from sgdr.metrics.geometry import chamfer_distance, earth_movers_distance, earth_movers_distances, subsample
 from sgdr.metrics.image import psnr, ssim
 
-__all__ = ["chamfer_distance", "earth_movers_distance", "subsample", "psnr", "ssim"]
+__all__ = ["chamfer_distance", "earth_movers_distance", "earth_movers_distances", "subsample", "psnr", "ssim"]

@@ -59,6 +59,8 @@ class ReconConfig:
     render_videos: bool = True  # write side-by-side videos (ground truth | prediction)
     write_plys: bool = True  # write per-frame PLYs of Gaussian centres and anchors
     eval_emd: bool = True  # compute the EMD (exact assignment, the slowest metric)
+    eval_workers: int = 0  # processes computing the per-frame EMDs side by side (0 = every CPU,
+    #                        1 = in the main process); the scores do not depend on it
     contact_margin: float = -1.0  # the simulated ground (anchor contact plane) is raised by this
     #                               along its normal, scene units: the anchors are interior points,
     #                               the visible surface lies about one Gaussian scale beyond them

@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from sgdr.metrics import chamfer_distance, earth_movers_distance, psnr, ssim
+from sgdr.metrics import chamfer_distance, earth_movers_distances, psnr, ssim
 from sgdr.recon.baseline import ISSUE_BASELINES, physics_free_predictions
 
 
@@ -28,10 +28,12 @@ def _mean(xs) -> float:
     return float(np.mean(xs)) if xs else float("nan")
 
 
-def evaluate_prediction(prediction, seq, with_emd: bool = True, seed: int = 0) -> dict:
+def evaluate_prediction(prediction, seq, with_emd: bool = True, seed: int = 0, workers: int = 0) -> dict:
     """All scores as a JSON-able dict (means and per-frame lists).
 
     prediction: `Prediction` (centres [T, M, 3], images [T, V, H, W, 3] uint8); seq: Sequence.
+    workers: processes for the per-frame EMDs (`earth_movers_distances`; 0 = every CPU).
+    The EMD is computed once per frame, for the prediction only (the baseline is scored by CD).
     """
     T = prediction.centres.shape[0]
     n_fit = int(seq.n_fit)
@@ -39,10 +41,14 @@ def evaluate_prediction(prediction, seq, with_emd: bool = True, seed: int = 0) -
         raise ValueError(f"evaluate: prediction has {T} frames, the sequence {seq.n_frames}")
     per_frame: dict[str, list] = {"cd": [], "emd": [], "psnr": [], "ssim": []}
     has_gt = seq.gt_particles(0) is not None
+    gts = [seq.gt_particles(f) for f in range(seq.n_frames)] if has_gt else [None] * seq.n_frames
+    if has_gt and with_emd:
+        per_frame["emd"] = earth_movers_distances(zip(prediction.centres[: seq.n_frames], gts), seed=seed, workers=workers)
+    else:
+        per_frame["emd"] = [None] * seq.n_frames
     for f in range(seq.n_frames):
-        gt = seq.gt_particles(f) if has_gt else None
+        gt = gts[f]
         per_frame["cd"].append(chamfer_distance(prediction.centres[f], gt, seed=seed) if gt is not None else None)
-        per_frame["emd"].append(earth_movers_distance(prediction.centres[f], gt, seed=seed) if gt is not None and with_emd else None)
         if prediction.images.size:
             ps, ss = [], []
             for v in range(len(seq.cameras)):
@@ -65,7 +71,7 @@ def evaluate_prediction(prediction, seq, with_emd: bool = True, seed: int = 0) -
             np.asarray(seq.gravity, float), np.asarray(seq.ground_point, float), np.asarray(seq.ground_normal, float),
         )
         base = {
-            name: _mean(chamfer_distance(pts, seq.gt_particles(n_fit + k), seed=seed) for k, pts in enumerate(frames))
+            name: _mean(chamfer_distance(pts, gts[n_fit + k], seed=seed) for k, pts in enumerate(frames))
             for name, frames in cands.items()
         }
         out["baseline_future_cd_by_variant"] = base

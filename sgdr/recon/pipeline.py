@@ -121,6 +121,7 @@ def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> Run
 
     t_start = time.time()
     seq_root = ensure_sequence(cfg)
+    t_sequence = time.time() - t_start  # generation when the sequence was missing
     seq = load_sequence(seq_root)
     name = default_run_name(cfg)
     run_dir = Path(run_dir) if run_dir is not None else Path(cfg.recon.output_dir) / name
@@ -147,6 +148,7 @@ def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> Run
                     "v0": list(out.stages["velocity"].value["v0"]),
                 },
                 "stages_skipped": [n for n, r in out.stages.items() if r.skipped],
+                "stage_seconds": {"sequence": t_sequence, **{n: r.seconds for n, r in out.stages.items()}},
                 "minutes": (time.time() - t_start) / 60.0,
             }
         )
@@ -328,7 +330,7 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
     def evaluate_produce(out: Path, ckpt) -> None:
         from sgdr.recon.evaluate import evaluate_prediction
 
-        scores = evaluate_prediction(pred, seq, with_emd=cfg.recon.eval_emd, seed=cfg.seed)
+        scores = evaluate_prediction(pred, seq, with_emd=cfg.recon.eval_emd, seed=cfg.seed, workers=cfg.recon.eval_workers)
         (out / "scores.json").write_text(json.dumps(scores, indent=1, default=float))
 
     stages["evaluate"] = runner.run(

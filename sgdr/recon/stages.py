@@ -30,6 +30,7 @@ import json
 import logging
 import os
 import shutil
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -136,6 +137,7 @@ class StageResult(Generic[T]):
     digest: str  # key hash + file hashes; put it into downstream keys
     out_dir: Path
     skipped: bool  # True when a verified earlier output was reused
+    seconds: float = 0.0  # wall time of this call (verifying, or producing and hashing)
 
 
 class StageRunner:
@@ -188,13 +190,14 @@ class StageRunner:
           upstream digests, seeds). produce(out_dir, ckpt) writes the outputs; load(out_dir)
           reads them back (and must raise on anything malformed).
         """
+        t0 = time.perf_counter()
         out_dir = self.stage_dir(name)
         khash = key_hash(key)
         if not self.force and out_dir.exists():
             ok, reason, value, digest = self._verify(out_dir, khash, load)
             if ok:
                 log.info("stage %s: complete and verified, skipped", name)
-                return StageResult(name, value, digest, out_dir, skipped=True)
+                return StageResult(name, value, digest, out_dir, skipped=True, seconds=time.perf_counter() - t0)
             log.warning("stage %s: redoing it, %s", name, reason)
         elif self.force:
             log.info("stage %s: force=true, redoing it", name)
@@ -214,8 +217,9 @@ class StageRunner:
         except Exception as exc:
             raise StageError(f"stage {name}: its fresh outputs in {out_dir} cannot be loaded: {exc}") from exc
         _atomic_write_text(out_dir / MARKER, json.dumps({"key_hash": khash, "digest": digest, "files": files}, indent=1))
-        log.info("stage %s: done", name)
-        return StageResult(name, value, digest, out_dir, skipped=False)
+        seconds = time.perf_counter() - t0
+        log.info("stage %s: done in %.1f s", name, seconds)
+        return StageResult(name, value, digest, out_dir, skipped=False, seconds=seconds)
 
     @staticmethod
     def _clear_outputs(out_dir: Path, keep_checkpoint: bool) -> None:

@@ -82,12 +82,11 @@ def _pair_adjoint(xa, xb, va, vb, l, k_s, eta, zeta0, G, law_slope, cfg: Physics
     return d_bar, u_bar, k_s_bar, eta_bar, zeta0_bar
 
 
-def spring_forces_adjoint(model: SpringModel, x, v, k, sp, zeta0, f_bar, cfg: PhysicsConfig, evaluate: bool = True):
+def spring_forces_adjoint(model: SpringModel, x, v, k, sp, zeta0, f_bar, cfg: PhysicsConfig):
     """x̄, v̄ (Array3f [N_A]), k̄ (Float [N_A]) of the spring sum for the cotangent f_bar
     (Array3f [N_A]) of its output, and per-anchor partial sums of sp̄, ζ̄0 (Float [N_A]: the
-    adjoint of sp, ζ0 is their sum). All inputs detached; sp, ζ0 of width 1 or N_A.
-    evaluate=False leaves the results lazy, so the caller can fuse its own sums into the
-    kernel of the two loops."""
+    adjoint of sp, ζ0 is their sum). All inputs detached; sp, ζ0 of width 1 or N_A. The
+    results are left lazy: the caller evaluates them together with its own sums."""
     t = ad()
     n, n_k = model.n_anchors, model.n_k
     symmetric = cfg.springs == "symmetric"
@@ -158,8 +157,6 @@ def spring_forces_adjoint(model: SpringModel, x, v, k, sp, zeta0, f_bar, cfg: Ph
     )
     x_bar, v_bar = x_out + x_in, v_out + v_in
     k_bar = k_bar + k_in if symmetric else k_bar
-    if evaluate:
-        dr.eval(x_bar, v_bar, k_bar, sp_part, z_part)
     return x_bar, v_bar, k_bar, sp_part, z_part
 
 
@@ -209,7 +206,7 @@ class _Frame(dr.CustomOp):
                 dr.backward_from(dr.dot(x_next, x_bar) + dr.dot(v_next, v_bar))
                 gx, gv, f_bar, gg, gmu, ge = (dr.grad(a) for a in (xs, vs, fs, gs, mus, es))
             dr.eval(f_bar)  # the adjoint loops gather it at the neighbours
-            sx, sv, sk, ssp, sz = spring_forces_adjoint(self.model, x, v, k, sp, zeta0, f_bar, self.cfg, evaluate=False)
+            sx, sv, sk, ssp, sz = spring_forces_adjoint(self.model, x, v, k, sp, zeta0, f_bar, self.cfg)
             x_bar, v_bar = gx + sx, gv + sv
             k_bar, sp_bar, z_bar = k_bar + sk, sp_bar + ssp, z_bar + sz
             g_bar, mu_bar, e_bar = g_bar + gg, mu_bar + gmu, e_bar + ge

@@ -358,6 +358,9 @@ def simulate_frame(
     """Advance one frame (dt_frame seconds) with n_substeps substeps; differentiable w.r.t.
     `params` and `state` (recorded AD). check: validate inputs and the stability bound before,
     and finiteness after (raises SimulationUnstable)."""
+    # an unevaluated width-1 parameter (e.g. dr.maximum(opt["friction"], 0.0)) is resized in
+    # place to N_A by Dr.Jit as soon as it meets an N_A-wide array; evaluated, it stays one value
+    dr.eval(params.kappa, params.v0, params.friction, params.restitution, params.zeta0, params.gravity)
     if check:
         check_inputs(model, params, state, dt_frame, n_substeps, cfg)
     dt = float(dt_frame) / int(n_substeps)

@@ -4,7 +4,7 @@ PYTHON ?= $(shell [ -x .venv/bin/python ] && echo .venv/bin/python || echo pytho
 BENCH ?=
 PRESET ?= small
 
-.PHONY: setup test test-all bench data demo reproduce clean help
+.PHONY: setup test test-all bench data demo reproduce oracle clean help
 
 help:
 	@echo "make setup      install libLLVM + sgdr with pinned dependencies (idempotent)"
@@ -13,6 +13,7 @@ help:
 	@echo "make data       generate the 7-object benchmark at the small preset into data/"
 	@echo "make demo       generate + reconstruct + predict + evaluate the torus (small preset)"
 	@echo "make reproduce  the README's seven-object table: every object at the small preset, then the table"
+	@echo "make oracle     the spring-mass model fitted to the torus's ground-truth particle tracks (OBJECT=...)"
 
 setup:
 	bash scripts/setup.sh
@@ -43,6 +44,12 @@ reproduce:
 	$(PYTHON) experiments/reconstruct.py -m preset=$(PRESET) physics.contact=coulomb \
 		synth.object=$(subst $(space),$(comma),$(OBJECTS))
 	$(PYTHON) -m evaluation.table $(foreach o,$(OBJECTS),outputs/$(o)_$(PRESET)_s0)
+
+# The identification upper bound: the model fitted to the generator's particle tracks instead of
+# images (README, "Oracle"). About 2.5 min for the small torus on the 2-core machine.
+OBJECT ?= torus
+oracle:
+	$(PYTHON) experiments/oracle.py preset=$(PRESET) synth.object=$(OBJECT) physics.contact=coulomb
 
 clean:
 	rm -rf outputs multirun .pytest_cache

@@ -112,3 +112,14 @@ def test_drivers_run_on_the_tiny_preset(tiny_run):
     assert sim.returncode == 0, sim.stderr[-2000:]
     target = Path(json.loads(sim.stdout.strip().splitlines()[-1])["simulate"])
     assert (target / "video.mp4").stat().st_size > 0 and (target / "trajectory.npz").exists()
+    # the identification upper bound: the model fitted to the generator's particle tracks
+    orc = subprocess.run(
+        [sys.executable, "experiments/oracle.py", *common, "recon.oracle.iterations=4"],
+        cwd=root, capture_output=True, text=True,
+    )
+    assert orc.returncode == 0, orc.stderr[-2000:]
+    summary = json.loads(orc.stdout.strip().splitlines()[-1])
+    assert np.isfinite(summary["oracle_future_cd"]) and np.isfinite(summary["baseline_future_cd"])
+    assert summary["baseline_variant"] in ("ballistic", "still")
+    oracle_dir = Path(cfg.recon.output_dir) / "torus_tiny_s0_oracle"
+    assert (oracle_dir / "oracle.png").stat().st_size > 0 and (oracle_dir / "oracle.json").exists()

@@ -23,6 +23,17 @@ class SimulateConfig:
 
 
 @dataclass
+class OracleConfig:
+    """`experiments/oracle.py`: the model fitted to the generator's particle tracks (an upper
+    bound on what identification from images can reach; `sgdr.recon.oracle`)."""
+
+    iterations: int = 60  # Adam steps, each a full-gradient rollout over the fit frames
+    log10_k_init: float = 3.3  # uniform start of log10 k_i (the small torus's grid choice)
+    contact_margin: float = -1.0  # ground raised by this along its normal, scene units (< 0 =
+    #                               half the generator's MPM cell: its collider band)
+
+
+@dataclass
 class ReconConfig:
     iterations: int = 200  # dynamic-reconstruction passes over the fit frames
     lambda_dssim: float = 0.05  # λ of the dynamic loss
@@ -66,3 +77,4 @@ class ReconConfig:
     #                               the visible surface lies about one Gaussian scale beyond them
     #                               (< 0 = the median scale of the static fit's Gaussians)
     simulate: SimulateConfig = field(default_factory=SimulateConfig)  # experiments/simulate.py
+    oracle: OracleConfig = field(default_factory=OracleConfig)  # experiments/oracle.py

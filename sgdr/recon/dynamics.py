@@ -88,7 +88,7 @@ def _lr(cfg: ReconConfig, name: str) -> float:
     return float(getattr(cfg, f"lr_{name}"))
 
 
-def _clamp(opt, cfg: ReconConfig) -> None:
+def clamp_to_ranges(opt, cfg: ReconConfig) -> None:
     opt["log10_k"] = dr.clip(opt["log10_k"], cfg.log10_k_min, cfg.log10_k_max)
     opt["friction"] = dr.clip(opt["friction"], 0.0, cfg.friction_max)
     if "restitution" in opt:
@@ -233,7 +233,7 @@ def fit_dynamics(
                     log.warning("dynamics: non-finite frame %d, n_t raised to %d", f, n_t)
                 dr.backward(loss)
                 opt.step()
-                _clamp(opt, cfg)
+                clamp_to_ranges(opt, cfg)
                 frame_losses.append(value)
                 state = new.detach()
                 dr.eval(state.x, state.v)
@@ -252,7 +252,7 @@ def fit_dynamics(
                 raise RuntimeError(f"dynamics (full): non-finite loss at pass {it}; raise physics.n_substeps")
             dr.backward(loss)
             opt.step()
-            _clamp(opt, cfg)
+            clamp_to_ranges(opt, cfg)
         pass_losses.append(float(np.mean(frame_losses)))
         if on_pass is not None:
             on_pass(it, pass_losses[-1], n_t)

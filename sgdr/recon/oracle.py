@@ -1,0 +1,208 @@
+"""The identification upper bound ("oracle"): the spring-mass model fitted to the generator's
+own particle tracks instead of to images.
+
+Anchors are N_A of the ground-truth particles of frame 0 (farthest-point sampled), so every
+anchor has a true track [T, N_A, 3]. The loss is the mean squared distance between simulated
+anchors and their tracks over frames 1..n_fit-1, differentiated through the whole rollout
+(`grad_mode="full"`); v0 and gravity are the generator's, so only what stage 5 identifies is
+fitted: log10 k_i, κ, μ and e. The rollout then continues over the future frames.
+
+What it answers: how well the model class reproduces and predicts a sequence when rendering,
+the static fit and v0 are perfect. The future error is scored against the same physics-free
+continuations as the pipeline's baseline (`sgdr.recon.baseline`), here of the *true* tracks of
+the last two fit frames. If the oracle itself is not far ahead of that baseline, no image-based
+reconstruction with this model will be: the limit is the model, not the pipeline.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import drjit as dr
+import numpy as np
+
+from sgdr.metrics.geometry import chamfer_distance
+from sgdr.recon.baseline import BASELINES, ISSUE_BASELINES, physics_free_predictions
+
+
+@dataclass
+class OracleResult:
+    values: dict  # identified {"log10_k" [N_A], "kappa", "friction", "restitution"}
+    losses: list  # [iterations] training loss (mean squared anchor error over the fit frames)
+    track_error: np.ndarray  # [T] mean |simulated anchor - its track| per frame, scene units
+    cd: np.ndarray  # [T] Chamfer distance x1e3 of simulated anchors vs the tracked particles
+    baseline_cd: dict  # {variant: [n_future] CD x1e3} of the physics-free continuations
+    baseline_track_error: dict  # {variant: [n_future] mean |prediction - track|}
+    anchor_index: np.ndarray  # [N_A] indices of the tracked particles
+    n_fit: int
+
+    def summary(self) -> dict:
+        """The headline numbers: fit / future means of the oracle and of the baseline."""
+        f = self.n_fit
+        base = {name: float(np.mean(v)) for name, v in self.baseline_cd.items()}
+        best = min(ISSUE_BASELINES, key=lambda name: base[name])
+        return {
+            "oracle_fit_track_error": float(np.mean(self.track_error[1:f])),
+            "oracle_future_track_error": float(np.mean(self.track_error[f:])),
+            "oracle_fit_cd": float(np.mean(self.cd[1:f])),
+            "oracle_future_cd": float(np.mean(self.cd[f:])),
+            "baseline_future_cd": base[best],
+            "baseline_variant": best,
+            "baseline_future_cd_by_variant": base,
+            "baseline_future_track_error_by_variant": {n: float(np.mean(v)) for n, v in self.baseline_track_error.items()},
+            "log10_k_mean": float(np.mean(self.values["log10_k"])),
+            "log10_k_std": float(np.std(self.values["log10_k"])),
+            "kappa": float(self.values["kappa"]),
+            "friction": float(self.values["friction"]),
+            "restitution": float(self.values["restitution"]),
+            "final_loss": float(self.losses[-1]) if self.losses else float("nan"),
+        }
+
+
+def tracked_anchor_index(particles0: np.ndarray, n_anchors: int, seed: int) -> np.ndarray:
+    """[N_A] indices of farthest-point-sampled particles of frame 0 (particles0 [P, 3])."""
+    from scipy.spatial import cKDTree
+
+    from sgdr.anchors import sample_anchors
+
+    chosen = sample_anchors(particles0, int(n_anchors), "fps", 0.0, int(seed))  # [N_A, 3]
+    _, index = cKDTree(particles0).query(chosen, k=1)  # exact: the sampler returns particles
+    return np.asarray(index, dtype=np.int64)
+
+
+def fit_tracks(tracks: np.ndarray, ground, gravity, v0, fps: float, n_fit: int, physics_cfg,
+               n_k: int, iterations: int, recon_cfg, log10_k_init: float, progress: bool = False):
+    """Fit log10 k_i, κ, μ, e to anchor tracks and roll the result out over every frame.
+
+    tracks [T, N_A, 3] world, scene units (frame 0 = rest shape); ground: `Ground`; gravity,
+    v0 [3]; recon_cfg: `ReconConfig`, whose learning rates and clamps the dynamic stage uses.
+    Returns (values, losses [iterations], simulated anchors [T, N_A, 3]).
+    """
+    from sgdr.backend import ad
+    from sgdr.physics import PhysParams, SimState, build_spring_model, rollout
+    from sgdr.recon.dynamics import clamp_to_ranges
+    from sgdr.recon.optim import make_adam
+
+    t = ad()
+    cfg = replace(physics_cfg, grad_mode="full")
+    n_frames, n_a = tracks.shape[0], tracks.shape[1]
+    if not 2 <= n_fit <= n_frames:
+        raise ValueError(f"oracle: n_fit={n_fit} must be in [2, {n_frames}] (frames of the tracks)")
+    model = build_spring_model(tracks[0], int(n_k), cfg)
+    base = PhysParams.init(model, cfg, v0=tuple(map(float, v0)), gravity=tuple(map(float, gravity)))
+    opt = make_adam({
+        "log10_k": (t.Float(np.full(n_a, float(log10_k_init), np.float32)), recon_cfg.lr_log10_k),
+        "kappa": (t.Float(float(cfg.kappa_init)), recon_cfg.lr_kappa),
+        "friction": (t.Float(float(cfg.friction_init)), recon_cfg.lr_friction),
+        "restitution": (t.Float(float(cfg.restitution_init)), recon_cfg.lr_restitution),
+    })
+    targets = [t.Array3f(*(t.Float(tracks[f][:, c].astype(np.float32)) for c in range(3))) for f in range(n_frames)]
+    dt_frame = 1.0 / float(fps)
+
+    def params():
+        return replace(base, log10_k=opt["log10_k"], kappa=opt["kappa"], friction=opt["friction"],
+                       restitution=opt["restitution"])
+
+    steps = range(int(iterations))
+    if progress:
+        from tqdm import tqdm
+
+        steps = tqdm(steps, desc="oracle fit", leave=False)
+    losses = []
+    for _ in steps:
+        p = params()
+        states = rollout(model, p, SimState.at_rest(model, p.v0), ground, n_fit, dt_frame, cfg)
+        loss = 0.0
+        for f in range(1, n_fit):
+            loss = loss + dr.mean(dr.squared_norm(states[f].x - targets[f]))
+        loss = loss / float(n_fit - 1)
+        dr.backward(loss)
+        opt.step()
+        clamp_to_ranges(opt, recon_cfg)  # the stage's projection: log10 k, μ, e back into their ranges
+        losses.append(float(loss.numpy()[0]))
+        if progress:
+            steps.set_postfix(loss=f"{losses[-1]:.3e}")
+    with dr.suspend_grad():
+        p = params().detach()
+        states = rollout(model, p, SimState.at_rest(model, p.v0), ground, n_frames, dt_frame, cfg, grad_mode="truncated")
+        simulated = np.stack([np.asarray(s.x.numpy(), dtype=np.float64).T for s in states])  # [T, N_A, 3]
+        values = {
+            "log10_k": np.asarray(opt["log10_k"].numpy(), np.float64),
+            "kappa": float(opt["kappa"].numpy()[0]),
+            "friction": float(p.friction.numpy()[0]),
+            "restitution": float(p.restitution.numpy()[0]),
+        }
+    return values, losses, simulated
+
+
+def score_tracks(simulated: np.ndarray, tracks: np.ndarray, n_fit: int, fps: float, gravity, ground) -> tuple:
+    """Per-frame track error and CD of `simulated` vs `tracks` (both [T, N_A, 3]), and of the
+    physics-free continuations of the true tracks of frames n_fit-2, n_fit-1 on the future.
+    Returns (track_error [T], cd [T], baseline_cd {variant: [n_future]}, baseline_error {...})."""
+    n_frames = tracks.shape[0]
+    error = np.linalg.norm(simulated - tracks, axis=2).mean(axis=1)
+    cd = np.array([chamfer_distance(simulated[f], tracks[f]) for f in range(n_frames)])
+    future = physics_free_predictions(tracks[n_fit - 2], tracks[n_fit - 1], n_frames - n_fit, 1.0 / float(fps),
+                                      np.asarray(gravity, float), ground.point, ground.normal)
+    baseline_cd, baseline_error = {}, {}
+    for name in BASELINES:
+        preds = future[name]
+        baseline_cd[name] = np.array([chamfer_distance(preds[k], tracks[n_fit + k]) for k in range(len(preds))])
+        baseline_error[name] = np.array([np.linalg.norm(preds[k] - tracks[n_fit + k], axis=1).mean() for k in range(len(preds))])
+    return error, cd, baseline_cd, baseline_error
+
+
+def oracle_study(seq, n_anchors: int, n_k: int, physics_cfg, recon_cfg, seed: int = 0,
+                 progress: bool = False) -> OracleResult:
+    """Fit the model to the sequence's ground-truth particle tracks (gt/particles_*.npy and
+    gt/params.json's v0, MPM cell) and score fit and future. `seq`: a `Sequence` with gt."""
+    from sgdr.physics import Ground
+
+    gt = seq.gt_params()
+    if gt is None:
+        raise ValueError(f"{seq.root}: the oracle needs ground truth (gt/particles_*.npy, gt/params.json)")
+    for key in ("v0",):
+        if key not in gt:
+            raise ValueError(f"{seq.gt_dir / 'params.json'}: field {key!r} is missing")
+    particles = [seq.gt_particles(f) for f in range(seq.n_frames)]
+    index = tracked_anchor_index(particles[0], n_anchors, seed)
+    tracks = np.stack([p[index] for p in particles]).astype(np.float64)  # [T, N_A, 3]
+    oracle_cfg = recon_cfg.oracle
+    margin = float(oracle_cfg.contact_margin)
+    if margin < 0:  # the MPM collider acts on grid nodes up to half a cell above the plane
+        margin = 0.5 * float(gt.get("mpm", {}).get("dx", 0.0))
+    normal = np.asarray(seq.ground_normal, float)
+    ground = Ground(np.asarray(seq.ground_point, float) + margin * normal, normal)
+    values, losses, simulated = fit_tracks(
+        tracks, ground, seq.gravity, gt["v0"], seq.fps, seq.n_fit, physics_cfg, n_k,
+        int(oracle_cfg.iterations), recon_cfg, float(oracle_cfg.log10_k_init), progress=progress,
+    )
+    error, cd, baseline_cd, baseline_error = score_tracks(simulated, tracks, seq.n_fit, seq.fps, seq.gravity, ground)
+    return OracleResult(values=values, losses=losses, track_error=error, cd=cd, baseline_cd=baseline_cd,
+                        baseline_track_error=baseline_error, anchor_index=index, n_fit=int(seq.n_fit))
+
+
+def plot_oracle(result: OracleResult, path, title: str = "") -> None:
+    """Per-frame track error of the oracle rollout and of the physics-free continuations."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, ax_loss) = plt.subplots(1, 2, figsize=(10, 3.6))
+    frames = np.arange(len(result.track_error))
+    ax.plot(frames, result.track_error, "k-o", ms=3, label="oracle spring-mass")
+    future = np.arange(result.n_fit, len(result.track_error))
+    for name, err in result.baseline_track_error.items():
+        ax.plot(future, err, "--", label=f"baseline: {name}")
+    ax.axvline(result.n_fit - 0.5, color="grey", lw=0.8)
+    ax.set_xlabel("frame (fit | future)")
+    ax.set_ylabel("mean anchor error, scene units")
+    ax.legend(fontsize=8)
+    ax_loss.semilogy(result.losses)
+    ax_loss.set_xlabel("oracle iteration")
+    ax_loss.set_ylabel("fit loss")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

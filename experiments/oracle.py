@@ -4,9 +4,10 @@ identification could go if rendering, static fit and v0 were perfect (`sgdr.reco
     python experiments/oracle.py preset=small synth.object=torus physics.contact=coulomb
 
 Uses the same sequence as `experiments/reconstruct.py` (generated when missing), the preset's
-N_A, n_k and physics, and the dynamic stage's learning rates. Writes `oracle.json` and
-`oracle.png` to `<recon.output_dir>/<run name>_oracle/`; the last line printed is one JSON
-object with the oracle's fit / future scores beside the physics-free baseline's.
+N_A, n_k and physics, and the dynamic stage's learning rates. Writes `oracle.json`,
+`oracle.png`, `log10_k.npy` and `tracks.npz` (simulated and true anchor tracks [T, N_A, 3]) to
+`<recon.output_dir>/<run name>_oracle/`; the last line printed is one JSON object with the
+oracle's fit / future scores beside the physics-free baseline's.
 """
 
 from __future__ import annotations
@@ -48,6 +49,8 @@ def main(cfg: DictConfig) -> None:
               "losses": result.losses, "config": OmegaConf.to_container(cfg, resolve=True)}
     (out / "oracle.json").write_text(json.dumps(record, indent=1))
     np.save(out / "log10_k.npy", result.values["log10_k"])
+    np.savez_compressed(out / "tracks.npz", simulated=result.simulated.astype(np.float32),
+                        tracks=result.tracks.astype(np.float32), anchor_index=result.anchor_index)
     plot_oracle(result, out / "oracle.png", title=f"{seq.root.name}: spring-mass fitted to the particle tracks")
     print(f"oracle: {out / 'oracle.json'}, {out / 'oracle.png'}")
     print(json.dumps({k: v for k, v in summary.items() if not isinstance(v, dict)}))

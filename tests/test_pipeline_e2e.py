@@ -123,3 +123,5 @@ def test_drivers_run_on_the_tiny_preset(tiny_run):
     assert summary["baseline_variant"] in ("ballistic", "still")
     oracle_dir = Path(cfg.recon.output_dir) / "torus_tiny_s0_oracle"
     assert (oracle_dir / "oracle.png").stat().st_size > 0 and (oracle_dir / "oracle.json").exists()
+    with np.load(oracle_dir / "tracks.npz") as saved:
+        assert saved["simulated"].shape == saved["tracks"].shape and saved["tracks"].shape[2] == 3

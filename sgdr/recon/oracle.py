@@ -35,6 +35,8 @@ class OracleResult:
     baseline_track_error: dict  # {variant: [n_future] mean |prediction - track|}
     anchor_index: np.ndarray  # [N_A] indices of the tracked particles
     n_fit: int
+    simulated: np.ndarray  # [T, N_A, 3] the identified model's rollout over every frame
+    tracks: np.ndarray  # [T, N_A, 3] the tracked particles (ground truth)
 
     def summary(self) -> dict:
         """The headline numbers: fit / future means of the oracle and of the baseline."""
@@ -179,7 +181,8 @@ def oracle_study(seq, n_anchors: int, n_k: int, physics_cfg, recon_cfg, seed: in
     )
     error, cd, baseline_cd, baseline_error = score_tracks(simulated, tracks, seq.n_fit, seq.fps, seq.gravity, ground)
     return OracleResult(values=values, losses=losses, track_error=error, cd=cd, baseline_cd=baseline_cd,
-                        baseline_track_error=baseline_error, anchor_index=index, n_fit=int(seq.n_fit))
+                        baseline_track_error=baseline_error, anchor_index=index, n_fit=int(seq.n_fit),
+                        simulated=simulated, tracks=tracks)
 
 
 def plot_oracle(result: OracleResult, path, title: str = "") -> None:

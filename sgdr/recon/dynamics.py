@@ -89,6 +89,7 @@ def _lr(cfg: ReconConfig, name: str) -> float:
 
 
 def clamp_to_ranges(opt, cfg: ReconConfig) -> None:
+    """Project the optimised parameters back into their configured ranges (after each Adam step)."""
     opt["log10_k"] = dr.clip(opt["log10_k"], cfg.log10_k_min, cfg.log10_k_max)
     opt["friction"] = dr.clip(opt["friction"], 0.0, cfg.friction_max)
     if "restitution" in opt:

@@ -50,6 +50,15 @@ def array3_to_points(a) -> np.ndarray:
     return np.asarray(dr.detach(a).numpy(), dtype=np.float64).T.reshape(-1, 3)
 
 
+def raised_ground(seq, margin: float):
+    """The sequence's ground plane moved `margin` scene units along its normal, as a `Ground`:
+    the plane the anchors (interior points) collide with."""
+    from sgdr.physics import Ground
+
+    normal = np.asarray(seq.ground_normal, float) / np.linalg.norm(np.asarray(seq.ground_normal, float))
+    return Ground(np.asarray(seq.ground_point, float) + float(margin) * normal, normal)
+
+
 def render(gaussians, camera, render_cfg):
     """`sgdr.render`'s splatting renderer (CONTRACTS.md): RenderOutput(rgb [H, W, 3], alpha)."""
     import sgdr.render

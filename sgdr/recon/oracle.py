@@ -23,6 +23,7 @@ import numpy as np
 
 from sgdr.metrics.geometry import chamfer_distance
 from sgdr.recon.baseline import BASELINES, ISSUE_BASELINES, physics_free_predictions
+from sgdr.recon.common import array3_to_points, points_to_array3, raised_ground
 
 
 @dataclass
@@ -98,7 +99,7 @@ def fit_tracks(tracks: np.ndarray, ground, gravity, v0, fps: float, n_fit: int, 
         "friction": (t.Float(float(cfg.friction_init)), recon_cfg.lr_friction),
         "restitution": (t.Float(float(cfg.restitution_init)), recon_cfg.lr_restitution),
     })
-    targets = [t.Array3f(*(t.Float(tracks[f][:, c].astype(np.float32)) for c in range(3))) for f in range(n_frames)]
+    targets = [points_to_array3(tracks[f]) for f in range(n_frames)]
     dt_frame = 1.0 / float(fps)
 
     def params():
@@ -127,7 +128,7 @@ def fit_tracks(tracks: np.ndarray, ground, gravity, v0, fps: float, n_fit: int, 
     with dr.suspend_grad():
         p = params().detach()
         states = rollout(model, p, SimState.at_rest(model, p.v0), ground, n_frames, dt_frame, cfg, grad_mode="truncated")
-        simulated = np.stack([np.asarray(s.x.numpy(), dtype=np.float64).T for s in states])  # [T, N_A, 3]
+        simulated = np.stack([array3_to_points(s.x) for s in states])  # [T, N_A, 3]
         values = {
             "log10_k": np.asarray(opt["log10_k"].numpy(), np.float64),
             "kappa": float(opt["kappa"].numpy()[0]),
@@ -158,14 +159,11 @@ def oracle_study(seq, n_anchors: int, n_k: int, physics_cfg, recon_cfg, seed: in
                  progress: bool = False) -> OracleResult:
     """Fit the model to the sequence's ground-truth particle tracks (gt/particles_*.npy and
     gt/params.json's v0, MPM cell) and score fit and future. `seq`: a `Sequence` with gt."""
-    from sgdr.physics import Ground
-
     gt = seq.gt_params()
     if gt is None:
         raise ValueError(f"{seq.root}: the oracle needs ground truth (gt/particles_*.npy, gt/params.json)")
-    for key in ("v0",):
-        if key not in gt:
-            raise ValueError(f"{seq.gt_dir / 'params.json'}: field {key!r} is missing")
+    if "v0" not in gt:
+        raise ValueError(f"{seq.gt_dir / 'params.json'}: field 'v0' is missing")
     particles = [seq.gt_particles(f) for f in range(seq.n_frames)]
     index = tracked_anchor_index(particles[0], n_anchors, seed)
     tracks = np.stack([p[index] for p in particles]).astype(np.float64)  # [T, N_A, 3]
@@ -173,8 +171,7 @@ def oracle_study(seq, n_anchors: int, n_k: int, physics_cfg, recon_cfg, seed: in
     margin = float(oracle_cfg.contact_margin)
     if margin < 0:  # the MPM collider acts on grid nodes up to half a cell above the plane
         margin = 0.5 * float(gt.get("mpm", {}).get("dx", 0.0))
-    normal = np.asarray(seq.ground_normal, float)
-    ground = Ground(np.asarray(seq.ground_point, float) + margin * normal, normal)
+    ground = raised_ground(seq, margin)
     values, losses, simulated = fit_tracks(
         tracks, ground, seq.gravity, gt["v0"], seq.fps, seq.n_fit, physics_cfg, n_k,
         int(oracle_cfg.iterations), recon_cfg, float(oracle_cfg.log10_k_init), progress=progress,

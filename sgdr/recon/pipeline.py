@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sgdr.recon.common import frame_targets, points_to_array3
+from sgdr.recon.common import frame_targets, points_to_array3, raised_ground
 from sgdr.recon.stages import StageResult, StageRunner, file_hash, key_hash
 
 log = logging.getLogger(__name__)
@@ -164,7 +164,7 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
     from sgdr.anchors import IDWBinding, sample_anchors
     from sgdr.gaussians.ply import load_ply, save_ply
     from sgdr.gaussians.static_fit import fit_static
-    from sgdr.physics import Ground, build_spring_model
+    from sgdr.physics import build_spring_model
 
     runner = StageRunner(run_dir, force=cfg.recon.force)
     seq_hash = sequence_digest(seq_root)
@@ -253,8 +253,7 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
     )
     v0 = np.asarray(stages["velocity"].value["v0"], dtype=np.float64)
     margin = contact_margin(cfg.recon, static_g)
-    normal = np.asarray(seq.ground_normal, float) / np.linalg.norm(np.asarray(seq.ground_normal, float))
-    ground = Ground(np.asarray(seq.ground_point, float) + margin * normal, normal)
+    ground = raised_ground(seq, margin)
 
     # ---- 5. dynamic reconstruction
     def dynamics_produce(out: Path, ckpt) -> None:

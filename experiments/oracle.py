@@ -46,12 +46,16 @@ def main(cfg: DictConfig) -> None:
     record = {**summary, "track_error": result.track_error.tolist(), "cd": result.cd.tolist(),
               "baseline_cd": {k: v.tolist() for k, v in result.baseline_cd.items()},
               "baseline_track_error": {k: v.tolist() for k, v in result.baseline_track_error.items()},
-              "losses": result.losses, "config": OmegaConf.to_container(cfg, resolve=True)}
+              "losses": result.losses, "k_offset_scan": result.scan, "ensemble": result.ensemble,
+              "config": OmegaConf.to_container(cfg, resolve=True)}
     (out / "oracle.json").write_text(json.dumps(record, indent=1))
     np.save(out / "log10_k.npy", result.values["log10_k"])
     np.savez_compressed(out / "tracks.npz", simulated=result.simulated.astype(np.float32),
                         tracks=result.tracks.astype(np.float32), anchor_index=result.anchor_index)
     plot_oracle(result, out / "oracle.png", title=f"{seq.root.name}: spring-mass fitted to the particle tracks")
+    for row in result.scan:
+        print(f"log10 k {row['offset']:+.3f}: fit track error {row['fit_track_error']:.4f}, "
+              f"future {row['future_track_error']:.4f}")
     print(f"oracle: {out / 'oracle.json'}, {out / 'oracle.png'}")
     print(json.dumps({k: v for k, v in summary.items() if not isinstance(v, dict)}))
 

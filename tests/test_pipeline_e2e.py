@@ -122,6 +122,9 @@ def test_drivers_run_on_the_tiny_preset(tiny_run):
     assert np.isfinite(summary["oracle_future_cd"]) and np.isfinite(summary["baseline_future_cd"])
     assert summary["baseline_variant"] in ("ballistic", "still")
     oracle_dir = Path(cfg.recon.output_dir) / "torus_tiny_s0_oracle"
-    assert (oracle_dir / "oracle.png").stat().st_size > 0 and (oracle_dir / "oracle.json").exists()
+    assert (oracle_dir / "oracle.png").stat().st_size > 0
+    record = json.loads((oracle_dir / "oracle.json").read_text())
+    assert [row["offset"] for row in record["k_offset_scan"]] == cfg.recon.oracle.k_offsets
+    assert set(record["ensemble"]["offsets"]) <= set(cfg.recon.oracle.k_offsets)
     with np.load(oracle_dir / "tracks.npz") as saved:
         assert saved["simulated"].shape == saved["tracks"].shape and saved["tracks"].shape[2] == 3

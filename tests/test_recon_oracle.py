@@ -6,7 +6,7 @@ import numpy as np
 
 from sgdr.physics import Ground, PhysicsConfig, SimState, build_spring_model, rollout
 from sgdr.recon.config import ReconConfig
-from sgdr.recon.oracle import fit_tracks, score_tracks, tracked_anchor_index
+from sgdr.recon.oracle import fit_tracks, offset_scan, score_tracks, tracked_anchor_index
 from sgdr.recon.predict import physical_params
 
 
@@ -37,6 +37,12 @@ def test_oracle_recovers_the_stiffness_of_its_own_twin():
     # measured: 0.027 vs 0.048 (held still). Per-anchor k spread 0.18 around the truth: the
     # mean is identified, the field only loosely (a 4 cm drop excites little of it)
     assert np.mean(error[7:]) < 0.75 * min(np.mean(v) for v in base_error.values())
+    # the offset scan's zero offset is the fitted model's own rollout; a large shift fits worse
+    rows, ensemble = offset_scan(tracks, ground, truth["gravity"], truth["v0"], 24.0, 7, cfg, 8, values, [0.0, 0.4],
+                                 ensemble_tol=1.25)
+    assert abs(rows[0]["future_track_error"] - np.mean(error[7:])) < 1e-6
+    assert rows[1]["fit_track_error"] > 1.25 * rows[0]["fit_track_error"] and ensemble["offsets"] == [0.0]
+    assert abs(ensemble["future_track_error"] - rows[0]["future_track_error"]) < 1e-6
 
 
 def test_tracked_anchors_are_particles():

@@ -16,7 +16,7 @@ reconstruction with this model will be: the limit is the model, not the pipeline
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import drjit as dr
 import numpy as np
@@ -38,6 +38,8 @@ class OracleResult:
     n_fit: int
     simulated: np.ndarray  # [T, N_A, 3] the identified model's rollout over every frame
     tracks: np.ndarray  # [T, N_A, 3] the tracked particles (ground truth)
+    scan: list = field(default_factory=list)  # `offset_scan` rows, one per log10 k offset
+    ensemble: dict = field(default_factory=dict)  # `offset_scan`'s ensemble of the near-best offsets
 
     def summary(self) -> dict:
         """The headline numbers: fit / future means of the oracle and of the baseline."""
@@ -59,6 +61,8 @@ class OracleResult:
             "friction": float(self.values["friction"]),
             "restitution": float(self.values["restitution"]),
             "final_loss": float(self.losses[-1]) if self.losses else float("nan"),
+            **({"ensemble_future_track_error": self.ensemble["future_track_error"],
+                "ensemble_members": len(self.ensemble["offsets"])} if self.ensemble else {}),
         }
 
 
@@ -127,8 +131,7 @@ def fit_tracks(tracks: np.ndarray, ground, gravity, v0, fps: float, n_fit: int, 
             steps.set_postfix(loss=f"{losses[-1]:.3e}")
     with dr.suspend_grad():
         p = params().detach()
-        states = rollout(model, p, SimState.at_rest(model, p.v0), ground, n_frames, dt_frame, cfg, grad_mode="truncated")
-        simulated = np.stack([array3_to_points(s.x) for s in states])  # [T, N_A, 3]
+        simulated = _rollout_points(model, p, ground, n_frames, dt_frame, cfg)
         values = {
             "log10_k": np.asarray(opt["log10_k"].numpy(), np.float64),
             "kappa": float(opt["kappa"].numpy()[0]),
@@ -136,6 +139,49 @@ def fit_tracks(tracks: np.ndarray, ground, gravity, v0, fps: float, n_fit: int, 
             "restitution": float(p.restitution.numpy()[0]),
         }
     return values, losses, simulated
+
+
+def _rollout_points(model, params, ground, n_frames: int, dt_frame: float, cfg) -> np.ndarray:
+    """Anchor positions [n_frames, N_A, 3] of a rollout from rest, without gradients."""
+    from sgdr.physics import SimState, rollout
+
+    with dr.suspend_grad():
+        states = rollout(model, params, SimState.at_rest(model, params.v0), ground, n_frames, dt_frame, cfg,
+                         grad_mode="truncated")
+        return np.stack([array3_to_points(s.x) for s in states])
+
+
+def offset_scan(tracks: np.ndarray, ground, gravity, v0, fps: float, n_fit: int, physics_cfg, n_k: int,
+                values: dict, offsets, ensemble_tol: float = 1.25) -> tuple:
+    """Roll the identified model out with its whole log10 k field shifted by each offset: how
+    much the fit frames pin down the future. Returns (rows, ensemble): rows [{"offset",
+    "fit_track_error", "future_track_error", "final_centre" [3]}]; ensemble: the mean rollout
+    of the offsets whose fit error is within `ensemble_tol` x the best, scored the same way
+    ({"offsets", "fit_track_error", "future_track_error", "spread_last"}; {} without offsets)."""
+    from sgdr.physics import build_spring_model
+    from sgdr.recon.predict import physical_params
+
+    offsets = [float(o) for o in offsets]
+    if not offsets:
+        return [], {}
+    model = build_spring_model(tracks[0], int(n_k), physics_cfg)
+    rows, runs = [], []
+    for offset in offsets:
+        shifted = {**values, "log10_k": np.asarray(values["log10_k"]) + offset, "v0": v0, "gravity": gravity}
+        sim = _rollout_points(model, physical_params(model, physics_cfg, shifted), ground, tracks.shape[0],
+                              1.0 / float(fps), physics_cfg)
+        error = np.linalg.norm(sim - tracks, axis=2).mean(axis=1)
+        rows.append({"offset": offset, "fit_track_error": float(error[1:n_fit].mean()),
+                     "future_track_error": float(error[n_fit:].mean()), "final_centre": sim[-1].mean(axis=0).tolist()})
+        runs.append(sim)
+    fit = np.array([r["fit_track_error"] for r in rows])
+    keep = np.flatnonzero(fit <= float(ensemble_tol) * fit.min())
+    mean = np.mean([runs[i] for i in keep], axis=0)
+    error = np.linalg.norm(mean - tracks, axis=2).mean(axis=1)
+    spread = np.mean([np.linalg.norm(runs[i][-1] - mean[-1], axis=1).mean() for i in keep])
+    ensemble = {"offsets": [offsets[i] for i in keep], "fit_track_error": float(error[1:n_fit].mean()),
+                "future_track_error": float(error[n_fit:].mean()), "spread_last": float(spread)}
+    return rows, ensemble
 
 
 def score_tracks(simulated: np.ndarray, tracks: np.ndarray, n_fit: int, fps: float, gravity, ground) -> tuple:
@@ -177,9 +223,11 @@ def oracle_study(seq, n_anchors: int, n_k: int, physics_cfg, recon_cfg, seed: in
         int(oracle_cfg.iterations), recon_cfg, float(oracle_cfg.log10_k_init), progress=progress,
     )
     error, cd, baseline_cd, baseline_error = score_tracks(simulated, tracks, seq.n_fit, seq.fps, seq.gravity, ground)
+    scan, ensemble = offset_scan(tracks, ground, seq.gravity, gt["v0"], seq.fps, seq.n_fit, physics_cfg, n_k, values,
+                                 oracle_cfg.k_offsets, oracle_cfg.ensemble_tol)
     return OracleResult(values=values, losses=losses, track_error=error, cd=cd, baseline_cd=baseline_cd,
                         baseline_track_error=baseline_error, anchor_index=index, n_fit=int(seq.n_fit),
-                        simulated=simulated, tracks=tracks)
+                        simulated=simulated, tracks=tracks, scan=scan, ensemble=ensemble)
 
 
 def plot_oracle(result: OracleResult, path, title: str = "") -> None:

@@ -20,6 +20,8 @@ import os
 import re
 from dataclasses import dataclass
 
+from sgdr.registry import Registry
+
 log = logging.getLogger(__name__)
 
 MIN_LLVM = 16
@@ -33,11 +35,14 @@ _LLVM_GLOBS = (
     "/usr/local/opt/llvm/lib/libLLVM.dylib",
 )
 
-_VARIANTS = {"llvm": "llvm_ad_rgb", "cuda": "cuda_ad_rgb"}
 
 
 class BackendError(RuntimeError):
     """The requested backend cannot be used; the message says what to install or change."""
+
+
+# backend name -> Mitsuba variant
+_VARIANTS = Registry("backend", "backend", BackendError, {"llvm": "llvm_ad_rgb", "cuda": "cuda_ad_rgb"})
 
 
 @dataclass(frozen=True)
@@ -104,8 +109,7 @@ def init(name: str = "llvm", threads: int | None = None) -> Backend:
       the pool is sized; the DRJIT_NUM_THREADS variable is ignored by Dr.Jit.
     """
     global _current
-    if name not in _VARIANTS:
-        raise BackendError(f"backend must be one of {sorted(_VARIANTS)}, got {name!r}")
+    variant = _VARIANTS.get_named(name)
     if _current is not None:
         if _current.name != name:
             raise BackendError(
@@ -124,7 +128,6 @@ def init(name: str = "llvm", threads: int | None = None) -> Backend:
 
     if name == "cuda" and not cuda_available():
         raise BackendError("backend 'cuda' was asked for but Dr.Jit finds no CUDA device/driver")
-    variant = _VARIANTS[name]
     if variant not in mi.variants():
         raise BackendError(f"Mitsuba build lacks variant {variant!r}; has {mi.variants()}")
     mi.set_variant(variant)

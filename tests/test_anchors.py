@@ -52,7 +52,7 @@ def test_fps_spreads_better_than_random():
 def test_sampling_bad_input():
     with pytest.raises(AnchorInputError, match=r"n_anchors=10 must be in \[1, M=5\]"):
         sample_anchors(_cloud(5), 10, "fps", 0.1, 0)
-    with pytest.raises(AnchorInputError, match=r"sampler='poisson' is not known"):
+    with pytest.raises(AnchorInputError, match=r"anchors.sampler='poisson' is not a known anchor sampler"):
         sample_anchors(_cloud(), 10, "poisson", 0.1, 0)
     with pytest.raises(AnchorInputError, match=r"shape \[M, 3\]"):
         sample_anchors(_cloud()[:, :2], 10, "fps", 0.1, 0)
@@ -123,7 +123,7 @@ def test_idw_bad_input():
     t = type(binding.rest_centres)
     with pytest.raises(AnchorInputError, match=r"anchor_x has 79 entries, binding has N_A=80"):
         binding.apply(t(*anchors[:-1].T.astype(np.float32)))
-    with pytest.raises(AnchorInputError, match=r"binding='nearest' is not known"):
+    with pytest.raises(AnchorInputError, match=r"anchors.binding='nearest' is not a known IDW binding form"):
         IDWBinding.build(centres, anchors, 8, 0.5, "nearest")
     with pytest.raises(AnchorInputError, match=r"n_b=100 must be in \[1, N_A=80\]"):
         IDWBinding.build(centres, anchors, 100, 0.5)

@@ -18,8 +18,10 @@ from scipy.spatial import cKDTree
 
 from sgdr.anchors.sampling import AnchorInputError
 from sgdr.backend import ad
+from sgdr.registry import Registry
 
-BINDING_FORMS = ("official", "displacement")
+# name -> form(binding, anchor_x) -> Gaussian centres Array3f [M] (see the module docstring)
+BINDING_FORMS = Registry("IDW binding form", "anchors.binding", AnchorInputError)
 
 
 def idw_weights(rest_centres: np.ndarray, anchors: np.ndarray, n_b: int, p_b: float, min_distance: float = 1e-8):
@@ -53,8 +55,7 @@ class IDWBinding:
                 raise AnchorInputError(f"IDWBinding.build: {name} contain NaN/inf")
         if not 1 <= n_b <= anchors.shape[0]:
             raise AnchorInputError(f"anchors.n_b={n_b} must be in [1, N_A={anchors.shape[0]}]")
-        if form not in BINDING_FORMS:
-            raise AnchorInputError(f"anchors.binding={form!r} is not known; choose from {list(BINDING_FORMS)}")
+        BINDING_FORMS.get_named(form)
         idx, w = idw_weights(rest_centres, anchors, n_b, p_b, min_distance)
         return IDWBinding(
             anchor_index=t.UInt32(idx.reshape(-1).astype(np.uint32)),
@@ -71,23 +72,24 @@ class IDWBinding:
 
     def apply(self, anchor_x) -> object:
         """Gaussian centres Array3f [M] from anchor positions Array3f [N_A] (differentiable)."""
-        t = ad()
         if dr.width(anchor_x) != dr.width(self.anchors_rest):
             raise AnchorInputError(
                 f"IDWBinding.apply: anchor_x has {dr.width(anchor_x)} entries, binding has N_A={dr.width(self.anchors_rest)}"
             )
+        return BINDING_FORMS.get_named(self.form)(self, anchor_x)
+
+    def weighted_sum(self, values) -> object:
+        """Σ_a w_ga values_a for every Gaussian g: Array3f [M] from Array3f [N_A] (a sum loop
+        over the n_b bound anchors, gathers only)."""
+        t = ad()
         m, n_b = self.count, self.n_b
-        displacement = self.form == "displacement"
         base = dr.arange(t.UInt32, m) * n_b
 
         def body(b, acc):
             s = base + b
             a = dr.gather(t.UInt32, self.anchor_index, s)
             w = dr.gather(t.Float, self.weight, s)
-            xa = dr.gather(t.Array3f, anchor_x, a)
-            if displacement:
-                xa = xa - dr.gather(t.Array3f, self.anchors_rest, a)
-            return b + 1, acc + w * xa
+            return b + 1, acc + w * dr.gather(t.Array3f, values, a)
 
         _, acc = dr.while_loop(
             state=(dr.zeros(t.UInt32, m), dr.zeros(t.Array3f, m)),
@@ -97,4 +99,16 @@ class IDWBinding:
             label="idw_apply",
             max_iterations=-1,
         )
-        return self.rest_centres + acc if displacement else acc
+        return acc
+
+
+@BINDING_FORMS.register("official")
+def bind_official(binding: IDWBinding, anchor_x):
+    """μ_g = Σ_a w_ga x_a (the official weighted anchor positions)."""
+    return binding.weighted_sum(anchor_x)
+
+
+@BINDING_FORMS.register("displacement")
+def bind_displacement(binding: IDWBinding, anchor_x):
+    """μ_g = μ_g^rest + Σ_a w_ga (x_a - x_a^rest) (exact at rest)."""
+    return binding.rest_centres + binding.weighted_sum(anchor_x - binding.anchors_rest)

@@ -8,24 +8,16 @@
 
 from __future__ import annotations
 
-from typing import Callable
-
 import numpy as np
+
+from sgdr.registry import Registry
 
 
 class AnchorInputError(ValueError):
     """Invalid input to anchor sampling or binding; the message names what is wrong."""
 
 
-SAMPLERS: dict[str, Callable] = {}
-
-
-def _register(name: str):
-    def deco(fn):
-        SAMPLERS[name] = fn
-        return fn
-
-    return deco
+SAMPLERS = Registry("anchor sampler", "anchors.sampler", AnchorInputError)
 
 
 def voxel_downsample(points: np.ndarray, voxel_size: float) -> np.ndarray:
@@ -38,8 +30,10 @@ def voxel_downsample(points: np.ndarray, voxel_size: float) -> np.ndarray:
     return sums / counts[:, None]
 
 
-@_register("voxel")
+@SAMPLERS.register("voxel")
 def sample_voxel(points: np.ndarray, n: int, voxel_size: float, rng: np.random.Generator) -> np.ndarray:
+    if not voxel_size > 0:
+        raise AnchorInputError(f"anchors.voxel_size={voxel_size} must be positive")
     size = float(voxel_size)
     for _ in range(20):
         centres = voxel_downsample(points, size)
@@ -49,7 +43,7 @@ def sample_voxel(points: np.ndarray, n: int, voxel_size: float, rng: np.random.G
     raise AnchorInputError(f"voxel sampler: only {centres.shape[0]} occupied voxels at size {size:g}, need {n}")
 
 
-@_register("fps")
+@SAMPLERS.register("fps")
 def sample_fps(points: np.ndarray, n: int, voxel_size: float, rng: np.random.Generator) -> np.ndarray:
     chosen = np.empty(n, dtype=np.int64)
     chosen[0] = rng.integers(points.shape[0])
@@ -69,8 +63,4 @@ def sample_anchors(points: np.ndarray, n: int, sampler: str, voxel_size: float, 
         raise AnchorInputError("points contain NaN/inf")
     if not 1 <= n <= points.shape[0]:
         raise AnchorInputError(f"anchors.n_anchors={n} must be in [1, M={points.shape[0]}] (number of points)")
-    if sampler not in SAMPLERS:
-        raise AnchorInputError(f"anchors.sampler={sampler!r} is not known; choose from {sorted(SAMPLERS)}")
-    if sampler == "voxel" and not voxel_size > 0:
-        raise AnchorInputError(f"anchors.voxel_size={voxel_size} must be positive")
-    return SAMPLERS[sampler](points, int(n), voxel_size, np.random.default_rng(seed))
+    return SAMPLERS.get_named(sampler)(points, int(n), voxel_size, np.random.default_rng(seed))

@@ -4,6 +4,7 @@
 data only through it. `write_sequence(...)` writes sgdr's layout (used by the generator).
 """
 
-from sgdr.data.sequence import Sequence, SequenceError, load_sequence, write_sequence
+from sgdr.data.layouts import load_sequence
+from sgdr.data.sequence import Sequence, SequenceError, write_sequence
 
 __all__ = ["Sequence", "SequenceError", "load_sequence", "write_sequence"]

@@ -230,5 +230,3 @@ def write_scene_sidecar(root, seq: Sequence) -> Path:
     )
     return path
 
-
-READERS = {"spring_gaus": read_spring_gaus, "pac_nerf": read_pac_nerf}

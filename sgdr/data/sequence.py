@@ -11,8 +11,8 @@ gt/params.json             optional: the generator's true parameters (material, 
 gt/effects.json            optional: the injected effects and their magnitudes
 ```
 
-`load_sequence(path)` reads this layout and, through `sgdr.data.foreign`, the Spring-Gaus
-(`camera.json`) and PAC-NeRF (`all_data.json`) layouts. Every missing file, missing field,
+`load_sequence(path)` (`sgdr.data.layouts`) reads this layout and, through `sgdr.data.foreign`,
+the Spring-Gaus (`camera.json`) and PAC-NeRF (`all_data.json`) layouts. Every missing file, missing field,
 wrong shape, inconsistent image size or frame count raises `SequenceError` naming the file and
 the field; nothing is skipped silently. Image headers are checked at load time (size and
 channel count), pixels are read on demand by `Sequence.image`.
@@ -347,37 +347,3 @@ def write_sequence(
     check_split(meta["n_frames"], meta["n_fit"], meta["hit_frame"], root / SEQUENCE_FILE)
     (root / SEQUENCE_FILE).write_text(json.dumps(meta, indent=2))
     return root
-
-
-# ---------------------------------------------------------------------------- dispatch
-def detect_layout(root: Path) -> str:
-    from sgdr.data import foreign
-
-    if (root / SEQUENCE_FILE).is_file():
-        return "sgdr"
-    if (root / foreign.SPRING_GAUS_FILE).is_file():
-        return "spring_gaus"
-    if (root / foreign.PAC_NERF_FILE).is_file():
-        return "pac_nerf"
-    raise SequenceError(
-        f"{root}: no sequence found: expected {SEQUENCE_FILE} (sgdr), "
-        f"{foreign.SPRING_GAUS_FILE} (Spring-Gaus) or {foreign.PAC_NERF_FILE} (PAC-NeRF)"
-    )
-
-
-def load_sequence(path, **scene_defaults) -> Sequence:
-    """Read a sequence folder, auto-detecting the sgdr / Spring-Gaus / PAC-NeRF layout.
-
-    scene_defaults: for the foreign layouts, which lack scene data, values for fps, n_fit,
-      hit_frame, ground (dict with point and normal) and gravity; a `sgdr_scene.json` in the
-      folder takes precedence over them (see `sgdr.data.foreign`). Ignored for sgdr's layout.
-    """
-    root = Path(path)
-    if not root.is_dir():
-        raise SequenceError(f"{root}: sequence folder does not exist")
-    layout = detect_layout(root)
-    if layout == "sgdr":
-        return read_sgdr(root)
-    from sgdr.data import foreign
-
-    return foreign.READERS[layout](root, **scene_defaults)

@@ -1,44 +1,24 @@
 """The swappable pieces of the simulator, chosen by name from `PhysicsConfig` through one
-registry each: spring law (Eq. 8), symmetric-spring stiffness, soft vector (Eq. 15) and ground
-contact (Eq. 13). Each entry is a pure Dr.Jit function; `sgdr.physics.reference` holds their
+`sgdr.registry.Registry` each: spring law (Eq. 8), symmetric-spring stiffness, soft vector
+(Eq. 15) and ground contact (Eq. 13). Each entry is a pure Dr.Jit function; `sgdr.physics.reference` holds their
 float64 NumPy twins, written separately.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Callable
 
 import drjit as dr
 
 from sgdr.physics.model import PhysicsInputError
-
-
-class Registry(dict):
-    """name -> function, with a decorator to register and an error listing the known names."""
-
-    def __init__(self, what: str):
-        super().__init__()
-        self.what = what
-
-    def register(self, name: str) -> Callable:
-        def deco(fn):
-            self[name] = fn
-            return fn
-
-        return deco
-
-    def get_named(self, name: str, setting: str):
-        if name not in self:
-            raise PhysicsInputError(f"{setting}={name!r} is not a known {self.what}; choose from {sorted(self)}")
-        return self[name]
+from sgdr.registry import Registry
 
 
 # --------------------------------------------------------------------------------------------
 # Spring laws (Eq. 8): F_k = -η_j k_ij g(Δl) d̂ with Δl = |x_i - x_j| - l_ij.
 # Each takes (Δl, 1 / l_ij, p_k, eps) and returns g(Δl) (scene units): k_ij g(Δl) is a force.
 # --------------------------------------------------------------------------------------------
-SPRING_LAWS = Registry("spring law")
+SPRING_LAWS = Registry("spring law", "physics.spring_law", PhysicsInputError)
 
 
 def _pow(a, p: float):
@@ -78,7 +58,7 @@ def law_official(dl, inv_l, p_k: float, eps: float):
 
 
 # (g, dg/dΔl) of each law, for the hand-written adjoint (sgdr/physics/adjoint.py); same arguments.
-SPRING_LAW_SLOPES = Registry("spring law")
+SPRING_LAW_SLOPES = Registry("spring law", "physics.spring_law", PhysicsInputError)
 
 
 @SPRING_LAW_SLOPES.register("paper")
@@ -100,7 +80,7 @@ def law_official_slope(dl, inv_l, p_k: float, eps: float):
 # --------------------------------------------------------------------------------------------
 # Stiffness of a symmetric spring (i, j) from the two anchors' k_i, k_j (Eq. 16 divides by l_ij).
 # --------------------------------------------------------------------------------------------
-SYMMETRIC_STIFFNESS = Registry("symmetric-spring stiffness")
+SYMMETRIC_STIFFNESS = Registry("symmetric-spring stiffness", "physics.symmetric_stiffness", PhysicsInputError)
 
 
 @SYMMETRIC_STIFFNESS.register("harmonic")
@@ -116,7 +96,7 @@ def stiffness_arithmetic(k_i, k_j):
 
 
 # (∂k_s/∂k_i, ∂k_s/∂k_j) of each symmetric stiffness, for the hand-written adjoint.
-SYMMETRIC_STIFFNESS_PARTIALS = Registry("symmetric-spring stiffness")
+SYMMETRIC_STIFFNESS_PARTIALS = Registry("symmetric-spring stiffness", "physics.symmetric_stiffness", PhysicsInputError)
 
 
 @SYMMETRIC_STIFFNESS_PARTIALS.register("harmonic")
@@ -170,7 +150,7 @@ def soft_vector_eta_slope(softplus_kappa, exponent):
 # Ground contact B (Eq. 13), applied after every substep's position update.
 # Signature: (x, v, point, normal, params, dt, g_norm, cfg) -> (x, v); point/normal Array3f [1].
 # --------------------------------------------------------------------------------------------
-CONTACTS = Registry("contact model")
+CONTACTS = Registry("contact model", "physics.contact", PhysicsInputError)
 
 
 @CONTACTS.register("project")
@@ -210,6 +190,11 @@ def contact_coulomb(x, v, point, normal, params, dt: float, g_norm, cfg):
     x = dr.select(below, x - phi * normal, x)
     v = dr.select(approach, v_new, v)
     return x, v
+
+
+# The boundary parameters Θ(B) each contact model uses (the ones the dynamic stage learns).
+CONTACT_PARAMETERS = Registry("contact model", "physics.contact", PhysicsInputError,
+                              {"project": ("friction",), "coulomb": ("friction", "restitution")})
 
 
 LN10 = math.log(10.0)

@@ -105,7 +105,7 @@ def _pair_force(xa, xb, va, vb, l, k_s, eta, zeta0, law, cfg: PhysicsConfig):
     return (-(k_s * eta * g + zeta0 * dr.dot(va - vb, d) * inv_length) * inv_l * inv_length) * d
 
 
-SPRINGS = Registry("springs variant")
+SPRINGS = Registry("springs variant", "physics.springs", PhysicsInputError)
 
 
 @SPRINGS.register("directed")
@@ -322,7 +322,7 @@ def substep(model: SpringModel, params: PhysParams, state: SimState, ground_c: d
 
 # How a frame's substeps are differentiated (`physics.adjoint`, see the module docstring):
 # (model, params, state, constants, dt, n_substeps, cfg) -> SimState.
-ADJOINTS = Registry("spring-mass adjoint")
+ADJOINTS = Registry("spring-mass adjoint", "physics.adjoint", PhysicsInputError)
 
 
 @ADJOINTS.register("recorded")
@@ -375,7 +375,7 @@ def simulate_frame(
     return state
 
 
-GRAD_MODES: Registry = Registry("gradient mode")
+GRAD_MODES = Registry("gradient mode", "grad_mode", PhysicsInputError)
 GRAD_MODES["full"] = lambda state: state  # gradients through every frame
 GRAD_MODES["truncated"] = SimState.detach  # official: each frame from the detached previous one
 

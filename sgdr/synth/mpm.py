@@ -34,6 +34,7 @@ import drjit as dr
 import numpy as np
 
 from sgdr.backend import ad
+from sgdr.registry import Registry
 from sgdr.synth.linalg import diag_conjugate, outer, sym_eig3
 
 
@@ -134,10 +135,8 @@ def create_model(
 ) -> MPMModel:
     """Build an `MPMModel`; checks the names and that every particle is inside the walls."""
     t = ad()
-    if material not in CONSTITUTIVE:
-        raise MPMError(f"synth.material must be one of {sorted(CONSTITUTIVE)}, got {material!r}")
-    if collider not in COLLIDERS:
-        raise MPMError(f"synth.ground must be one of {sorted(COLLIDERS)}, got {collider!r}")
+    CONSTITUTIVE.get_named(material)
+    COLLIDERS.get_named(collider)
     n = len(x_rest)
     lo = np.asarray(origin, dtype=np.float64) + wall_cells * dx
     hi = np.asarray(origin, dtype=np.float64) + (n_grid - wall_cells) * dx
@@ -189,7 +188,8 @@ def kirchhoff_fixed_corotated(F, mu, lam):
     return (2.0 * mu) * ((F - R) @ F.T) + (lam * (J - 1.0) * J) * I
 
 
-CONSTITUTIVE = {"neo_hookean": kirchhoff_neo_hookean, "fixed_corotated": kirchhoff_fixed_corotated}
+CONSTITUTIVE = Registry("MPM material", "synth.material", MPMError,
+                        {"neo_hookean": kirchhoff_neo_hookean, "fixed_corotated": kirchhoff_fixed_corotated})
 
 
 def von_mises_return(F, mu, yield_stress):
@@ -229,7 +229,8 @@ def collider_friction(v, n, vn, friction):
     return dr.select(vn < 0, vt * keep, v)
 
 
-COLLIDERS = {"sticky": collider_sticky, "slip": collider_slip, "friction": collider_friction}
+COLLIDERS = Registry("MPM ground collider", "synth.ground", MPMError,
+                     {"sticky": collider_sticky, "slip": collider_slip, "friction": collider_friction})
 
 
 # ---------------------------------------------------------------------------- transfers

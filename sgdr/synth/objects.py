@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sgdr.registry import Registry
+
 BOX_LO, BOX_HI = 0.3, 0.7  # the object's bounding box must lie inside [BOX_LO, BOX_HI]^3
 
 
@@ -152,7 +154,7 @@ class ObjectSpec:
     colours: tuple  # two linear RGB colours of the pattern
 
 
-OBJECTS = {
+OBJECTS = Registry("benchmark object", "synth.object", ObjectError, {
     "torus": ObjectSpec(sdf_torus, (1, 0, 0), 25.0, ((0.8, 0.35, 0.1), (0.95, 0.85, 0.3))),
     "cross": ObjectSpec(sdf_cross, (1, 1, 0), 20.0, ((0.15, 0.35, 0.8), (0.9, 0.9, 0.9))),
     "cream": ObjectSpec(sdf_cream, (0, 1, 0), 10.0, ((0.95, 0.9, 0.75), (0.55, 0.3, 0.15))),
@@ -160,7 +162,7 @@ OBJECTS = {
     "paste": ObjectSpec(sdf_paste, (0, 0, 1), 30.0, ((0.9, 0.9, 0.95), (0.1, 0.4, 0.75))),
     "chess": ObjectSpec(sdf_chess, (1, 0, 0), 0.0, ((0.1, 0.1, 0.12), (0.85, 0.8, 0.7))),
     "banana": ObjectSpec(sdf_banana, (1, 0, 0), 15.0, ((0.9, 0.8, 0.15), (0.35, 0.25, 0.05))),
-}
+})
 
 
 # ---------------------------------------------------------------------------- building
@@ -188,9 +190,7 @@ def pattern(x: np.ndarray, colours, frequency: float) -> np.ndarray:
 
 def placed_sdf(name: str):
     """The world-space SDF of object `name`, tilted and centred in the unit cube."""
-    if name not in OBJECTS:
-        raise ObjectError(f"synth.object must be one of {sorted(OBJECTS)}, got {name!r}")
-    spec = OBJECTS[name]
+    spec = OBJECTS.get_named(name)
     R = rotation(spec.tilt_axis, spec.tilt_deg)
     # The bounding box centre of the tilted object, found on a probe lattice.
     g = np.linspace(-0.3, 0.3, 121)

@@ -114,7 +114,7 @@ def _static_fit_small() -> tuple[float, float, int]:
     from sgdr.gaussians.model import Gaussians
     from sgdr.gaussians.static_fit import fit_static
     from sgdr.render.config import RenderConfig
-    from sgdr.render.losses import psnr
+    from sgdr.metrics import psnr
     from sgdr.render.splat import render
 
     cfg = compose(["preset=small"])

@@ -127,6 +127,7 @@ def peak_memory_child(n_anchors: int, n_k: int, n_frames: int) -> dict:
     """Run in a fresh process: a full-mode gradient of an n_frames x 100-substep rollout."""
     import drjit as dr
 
+    from sgdr.arrays import to_numpy
     from sgdr.physics import SimState, rollout
 
     cfg, model, params, state, ground = _system(n_anchors, n_k)
@@ -139,7 +140,7 @@ def peak_memory_child(n_anchors: int, n_k: int, n_frames: int) -> dict:
     for s in states[1:]:
         loss = loss + dr.sum(dr.squared_norm(s.x))
     dr.backward(loss)
-    g = np.asarray(dr.grad(params.log10_k).numpy())  # reading it runs the backward kernels
+    g = to_numpy(dr.grad(params.log10_k))  # reading it runs the backward kernels
     return {"peak_rss_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
             "rss_before_gib": rss_before, "seconds": time.perf_counter() - t0, "grad_finite": bool(np.isfinite(g).all())}
 

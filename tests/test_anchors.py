@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sgdr.anchors import AnchorInputError, IDWBinding, idw_weights, sample_anchors, voxel_downsample
-from sgdr.physics.model import _rows
+from sgdr.arrays import array3_to_points
 
 
 def _cloud(m=3000, seed=0):
@@ -89,7 +89,7 @@ def test_idw_apply_forward(form):
     centres, anchors, binding = _binding(form)
     t = type(binding.rest_centres)
     W = _dense_weights(centres, anchors, 8, 0.5)
-    rest = _rows(binding.apply(t(*anchors.T.astype(np.float32))))
+    rest = array3_to_points(binding.apply(t(*anchors.T.astype(np.float32))))
     if form == "displacement":
         assert np.abs(rest - centres).max() < 1e-6  # exact at rest
     else:
@@ -97,10 +97,10 @@ def test_idw_apply_forward(form):
         assert np.abs(rest - centres).max() > 1e-3  # the official form moves frame 0
     # moved anchors: both forms follow the weighted anchor motion
     moved = anchors + np.random.default_rng(1).normal(0, 0.05, anchors.shape)
-    out = _rows(binding.apply(t(*moved.T.astype(np.float32))))
+    out = array3_to_points(binding.apply(t(*moved.T.astype(np.float32))))
     expect = centres + W @ (moved - anchors) if form == "displacement" else W @ moved
     assert np.abs(out - expect).max() < 1e-5
-    shifted = _rows(binding.apply(t(*(moved + [0.1, -0.2, 0.3]).T.astype(np.float32))))
+    shifted = array3_to_points(binding.apply(t(*(moved + [0.1, -0.2, 0.3]).T.astype(np.float32))))
     assert np.abs(shifted - out - [0.1, -0.2, 0.3]).max() < 1e-5  # translation equivariant
 
 
@@ -113,7 +113,7 @@ def test_idw_apply_gradient(form):
     cot = np.random.default_rng(2).normal(size=centres.shape)
     out = binding.apply(x)
     dr.backward(dr.sum(dr.dot(out, t(*cot.T.astype(np.float32)))))
-    grad = _rows(dr.grad(x))
+    grad = array3_to_points(dr.grad(x))
     W = _dense_weights(centres, anchors, 8, 0.5)
     assert np.abs(grad - W.T @ cot).max() < 1e-4 * np.abs(W.T @ cot).max()
 

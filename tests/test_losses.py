@@ -7,7 +7,7 @@ from scipy.ndimage import gaussian_filter
 from skimage.metrics import structural_similarity
 
 from sgdr.backend import ad
-from sgdr.render.losses import LossError, dssim, image_loss, l1, mask_loss, psnr, ssim
+from sgdr.render.losses import LossError, dssim, image_loss, l1, mask_loss, ssim
 
 
 def _skimage_ssim(a, b):
@@ -93,7 +93,6 @@ def test_l1_image_loss_and_mask_loss(rng):
     dr.enable_grad(A)
     dr.backward(image_loss(A, B, lam))
     assert np.abs(np.asarray(dr.grad(A))).max() > 0
-    assert abs(psnr(a, b) - (-10 * np.log10(np.mean((a.astype(np.float64) - b) ** 2)))) < 1e-9
 
 
 def test_mismatched_image_sizes_raise(rng):

@@ -14,7 +14,8 @@ from sgdr.cameras import Camera
 from sgdr.gaussians.model import Gaussians
 from sgdr.physics import Ground, SimState, build_spring_model, rollout
 from sgdr.physics.config import PhysicsConfig
-from sgdr.recon.common import frame_targets, points_to_array3, posed, render_rgb_numpy, to_tensor
+from sgdr.arrays import points_to_array3
+from sgdr.recon.common import frame_targets, posed, render_rgb_numpy, to_tensor
 from sgdr.recon.config import ReconConfig
 from sgdr.recon.dynamics import fit_dynamics, substeps_at
 from sgdr.recon.predict import physical_params

@@ -10,7 +10,7 @@ from sgdr.gaussians.model import Gaussians
 from sgdr.gaussians.ply import PROPERTIES, SH_C0, load_ply, save_ply
 from sgdr.gaussians.static_fit import StaticFitError, box_from_masks, fit_static
 from sgdr.render.config import RenderConfig
-from sgdr.render.losses import psnr
+from sgdr.metrics import psnr
 from sgdr.render.splat import render
 
 

@@ -109,10 +109,7 @@ class Gaussians:
 
     def to_numpy(self) -> dict[str, np.ndarray]:
         """Detached float64 copies: means, log_scales, rotations, color_logits [M, 3|4], opacity_logits [M]."""
-        import drjit as dr
-
-        def arr(x):
-            return np.asarray(dr.detach(x).numpy(), dtype=np.float64)
+        from sgdr.arrays import to_numpy as arr
 
         return {
             "means": arr(self.means).T.reshape(-1, 3) if self.count else np.zeros((0, 3)),

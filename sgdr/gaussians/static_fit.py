@@ -25,6 +25,7 @@ import logging
 import drjit as dr
 import numpy as np
 
+from sgdr.arrays import to_numpy
 from sgdr.backend import ad
 from sgdr.cameras import Camera
 from sgdr.gaussians.config import StaticFitConfig
@@ -157,7 +158,7 @@ def fit_static(
 
     def prune():
         nonlocal opt
-        op = sigmoid(np.asarray(opt["opacity_logits"].numpy(), dtype=np.float64))
+        op = sigmoid(to_numpy(opt["opacity_logits"]))
         keep = op >= cfg.prune_opacity
         if keep.all():
             return

@@ -20,7 +20,9 @@ from sgdr.physics.model import (
     with_masses,
 )
 from sgdr.physics.simulate import (
+    Rollout,
     SimulationUnstable,
+    doubled_substeps,
     effective_stiffness,
     rollout,
     simulate_frame,
@@ -33,10 +35,12 @@ __all__ = [
     "PhysParams",
     "PhysicsConfig",
     "PhysicsInputError",
+    "Rollout",
     "SimState",
     "SimulationUnstable",
     "SpringModel",
     "build_spring_model",
+    "doubled_substeps",
     "effective_stiffness",
     "rollout",
     "simulate_frame",

@@ -1,8 +1,10 @@
 """Typed config schema of the spring-mass simulator (Hydra group key `physics`).
 
-Variant names (`spring_law`, `springs`, `symmetric_stiffness`, `contact`, `grad_mode`) are
+Variant names (`spring_law`, `springs`, `symmetric_stiffness`, `contact`, `adjoint`) are
 looked up in the registries of `sgdr.physics.laws` / `sgdr.physics.simulate`; an unknown name
-raises an error that lists the known ones.
+raises an error that lists the known ones. How a rollout's frames are chained for gradients
+("full" | "truncated") is not a setting: it is `rollout`'s argument `grad_mode`, chosen by
+each caller (the dynamic stage's `recon.mode`, the oracle, the benchmarks).
 """
 
 from __future__ import annotations
@@ -18,11 +20,10 @@ class PhysicsConfig:
     soft_vector_normalised: bool = True  # official: exponent (j - n_c) / (n_k - n_c) in Eq. 15
     contact: str = "project"  # "project" (official, per-substep μ) | "coulomb" (restitution e, μ)
     rest_speed_factor: float = 2.0  # "coulomb": approach speeds below this x |g| dt are resting contact (no bounce)
-    n_substeps: int = 100  # n_t, semi-implicit Euler substeps per frame
+    n_substeps: int = 100  # n_t, semi-implicit Euler substeps per frame (the dynamic stage scales it by recon.substep_growth)
     max_substeps: int = 400  # upper limit when retrying an unstable rollout with more substeps
-    retry_on_nan: bool = True  # the official remedy: rerun a frame with 2x substeps after NaN
+    retry_on_nan: bool = True  # the official remedy, the only one: an unstable frame is redone with 2x substeps
     cfl_factor: float = 1.4  # stability bound checked before running: dt <= cfl_factor * sqrt(m / k_eff)
-    grad_mode: str = "truncated"  # "full" (through all frames) | "truncated" (per frame, detached)
     adjoint: str = "gather"  # how a rollout is differentiated: "gather" (one custom op per frame, hand-written gather-only backward; default) | "recorded" (recorded AD of every substep, the reference)
     m0: float = 1.0  # anchor mass m_i = m0
     zeta0: float = 0.1  # ζ0, damping coefficient (ζ_ij = ζ0 / l_ij, Eq. 17)

@@ -19,6 +19,7 @@ import drjit as dr
 import numpy as np
 from scipy.spatial import cKDTree
 
+from sgdr.arrays import array3_to_points, to_numpy
 from sgdr.backend import ad
 from sgdr.physics.config import PhysicsConfig
 
@@ -86,10 +87,10 @@ class SpringModel:
     def numpy(self) -> dict:
         """Float64/int64 NumPy copies of the static arrays (for the reference twin and tests)."""
         return {
-            "x_rest": _rows(self.x_rest),
-            "spring_j": np.asarray(self.spring_j.numpy(), dtype=np.int64),
-            "spring_rest_length": np.asarray(self.spring_rest_length.numpy(), dtype=np.float64),
-            "particle_mass": np.asarray(self.particle_mass.numpy(), dtype=np.float64),
+            "x_rest": array3_to_points(self.x_rest),
+            "spring_j": to_numpy(self.spring_j, np.int64),
+            "spring_rest_length": to_numpy(self.spring_rest_length),
+            "particle_mass": to_numpy(self.particle_mass),
             "n_k": self.n_k,
             "n_c": self.n_c,
         }
@@ -242,9 +243,4 @@ class SimState:
 
     def numpy(self) -> tuple[np.ndarray, np.ndarray]:
         """(x [N_A, 3], v [N_A, 3]) float64."""
-        return _rows(self.x), _rows(self.v)
-
-
-def _rows(a) -> np.ndarray:
-    """Array3f [N] -> np [N, 3] float64."""
-    return np.stack([np.asarray(a[c].numpy(), dtype=np.float64) for c in range(3)], axis=1)
+        return array3_to_points(self.x), array3_to_points(self.v)

@@ -261,7 +261,7 @@ def check_inputs(model: SpringModel, params: PhysParams, state: SimState, dt_fra
         raise SimulationUnstable(
             f"dt = dt_frame / n_substeps = {dt_frame / n_substeps:.3g} s is too large for max log10_k = "
             f"{k_max:.3g}: stability needs dt <= physics.cfl_factor ({cfg.cfl_factor}) x sqrt(m / k_eff), "
-            f"i.e. n_substeps >= {need}; raise physics.n_substeps (now {n_substeps}) or lower the stiffness"
+            f"i.e. n_substeps >= {need} (now {n_substeps}); raise physics.n_substeps or lower the stiffness"
         )
 
 
@@ -368,8 +368,8 @@ def simulate_frame(
     state = stepper(model, params, state, _frame_constants(model, params, ground), dt, int(n_substeps), cfg)
     if check and not bool(dr.all(dr.isfinite(dr.detach(state.x)) & dr.isfinite(dr.detach(state.v)), axis=None)):
         raise SimulationUnstable(
-            f"NaN/inf after {n_substeps} substeps of {dt:.3g} s (physics.n_substeps={n_substeps}, "
-            f"spring_law={cfg.spring_law}, springs={cfg.springs}); raise physics.n_substeps or enable "
+            f"NaN/inf after {n_substeps} substeps of {dt:.3g} s (spring_law={cfg.spring_law}, "
+            f"springs={cfg.springs}); raise physics.n_substeps or enable "
             f"physics.retry_on_nan"
         )
     return state
@@ -380,6 +380,22 @@ GRAD_MODES["full"] = lambda state: state  # gradients through every frame
 GRAD_MODES["truncated"] = SimState.detach  # official: each frame from the detached previous one
 
 
+def doubled_substeps(n_substeps: int, cfg: PhysicsConfig) -> int | None:
+    """The one remedy for an unstable frame (official): n_t doubled. None when
+    physics.retry_on_nan is off or 2 n_t would exceed physics.max_substeps. `rollout` and the
+    dynamic stage's frame-by-frame schedule (sgdr.recon.dynamics) both use it."""
+    if not cfg.retry_on_nan or 2 * int(n_substeps) > cfg.max_substeps:
+        return None
+    return 2 * int(n_substeps)
+
+
+class Rollout(list):
+    """The states of frames 0..n_frames-1 (a list of SimState), plus the substeps per frame
+    the rollout used (`n_substeps`: the requested n_t, or more after the remedy)."""
+
+    n_substeps: int = 0
+
+
 def rollout(
     model: SpringModel,
     params: PhysParams,
@@ -388,31 +404,44 @@ def rollout(
     n_frames: int,
     dt_frame: float,
     cfg: PhysicsConfig,
-    grad_mode: str | None = None,
+    grad_mode: str = "full",
     n_substeps: int | None = None,
-) -> list[SimState]:
+) -> Rollout:
     """States at frames 0..n_frames-1 (frame 0 = state0), each frame n_substeps substeps
-    (default physics.n_substeps). grad_mode (default physics.grad_mode): "full" | "truncated".
+    (default physics.n_substeps).
+
+    grad_mode: how the frames are chained for gradients, chosen by the caller: "full"
+    (recorded through every frame, the exact gradient) | "truncated" (official: every frame
+    after the first starts from the detached previous state). Without gradients it makes no
+    difference.
 
     With physics.retry_on_nan, too few substeps for the stability bound are doubled up front,
     and a rollout that produces NaN/inf starts again from state0 with twice the substeps (the
-    official remedy), up to physics.max_substeps."""
-    enter: Callable = GRAD_MODES.get_named(grad_mode or cfg.grad_mode, "grad_mode")
+    official remedy, `doubled_substeps`), up to physics.max_substeps; the result's
+    `n_substeps` says what was used."""
+    enter: Callable = GRAD_MODES.get_named(grad_mode)
     n_sub = int(n_substeps or cfg.n_substeps)
     if n_frames < 1:
         raise PhysicsInputError(f"n_frames={n_frames} must be >= 1")
     if cfg.retry_on_nan:
         need = stable_substeps(model, params, dt_frame, cfg)
-        while n_sub < need and n_sub * 2 <= cfg.max_substeps:
-            n_sub *= 2
+        while n_sub < need and doubled_substeps(n_sub, cfg):
+            n_sub = doubled_substeps(n_sub, cfg)
     while True:
         try:
-            states = [state0]
+            states = Rollout([state0])
             for f in range(1, n_frames):
                 start = states[-1] if f == 1 else enter(states[-1])
                 states.append(simulate_frame(model, params, start, ground, dt_frame, n_sub, cfg))
+            states.n_substeps = n_sub
             return states
-        except SimulationUnstable:
-            if not cfg.retry_on_nan or n_sub * 2 > cfg.max_substeps:
-                raise
-            n_sub *= 2  # the official remedy: start again with twice the substeps
+        except SimulationUnstable as exc:
+            more = doubled_substeps(n_sub, cfg)
+            if more is None:
+                if not cfg.retry_on_nan:
+                    raise
+                raise SimulationUnstable(
+                    f"{exc}; physics.retry_on_nan doubled n_t up to {n_sub}, physics.max_substeps "
+                    f"({cfg.max_substeps}) stops it: raise physics.max_substeps or lower the stiffness"
+                ) from exc
+            n_sub = more  # the official remedy: start again with twice the substeps

@@ -182,7 +182,7 @@ def simulate_asset(asset: Asset, sim_cfg, render_cfg, progress: bool = False):
         raise ValueError(f"recon.simulate.cameras must be 'sequence' or 'orbit', got {sim_cfg.cameras!r}")
     traj = predict(model, params, binding, asset.gaussians, ground, n_frames, asset.fps, n_t, asset.physics, [], render_cfg, False, progress)
     cams = orbit_cameras(asset, n_frames)
-    from sgdr.recon.common import points_to_array3
+    from sgdr.arrays import points_to_array3
 
     images = []
     for f in range(n_frames):

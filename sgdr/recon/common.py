@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from sgdr.arrays import to_numpy
 from sgdr.backend import ad
 
 
@@ -37,19 +38,6 @@ def as_array3(log_scale):
     return ad().Array3f(log_scale, log_scale, log_scale)
 
 
-def points_to_array3(points: np.ndarray):
-    """np [N, 3] -> Array3f [N] (float32)."""
-    p = np.asarray(points, dtype=np.float32).reshape(-1, 3)
-    return ad().Array3f(*[np.ascontiguousarray(p[:, k]) for k in range(3)])
-
-
-def array3_to_points(a) -> np.ndarray:
-    """Array3f [N] -> np [N, 3] float64 (detached)."""
-    import drjit as dr
-
-    return np.asarray(dr.detach(a).numpy(), dtype=np.float64).T.reshape(-1, 3)
-
-
 def raised_ground(seq, margin: float):
     """The sequence's ground plane moved `margin` scene units along its normal, as a `Ground`:
     the plane the anchors (interior points) collide with."""
@@ -61,12 +49,9 @@ def raised_ground(seq, margin: float):
 
 def render(gaussians, camera, render_cfg):
     """`sgdr.render`'s splatting renderer (CONTRACTS.md): RenderOutput(rgb [H, W, 3], alpha)."""
-    import sgdr.render
+    from sgdr.render.splat import render as splat
 
-    fn = getattr(sgdr.render, "render", None)
-    if fn is None:  # the package does not re-export it: take it from its module
-        from sgdr.render.splat import render as fn
-    return fn(gaussians, camera, render_cfg)
+    return splat(gaussians, camera, render_cfg)
 
 
 def render_rgb_numpy(gaussians, camera, render_cfg) -> np.ndarray:
@@ -75,11 +60,4 @@ def render_rgb_numpy(gaussians, camera, render_cfg) -> np.ndarray:
 
     with dr.suspend_grad():
         out = render(gaussians, camera, render_cfg)
-        return np.clip(np.asarray(out.rgb.numpy(), dtype=np.float32), 0.0, 1.0)
-
-
-def scalar(x) -> float:
-    """A one-element Dr.Jit value (Float or TensorXf) -> Python float (detached)."""
-    import drjit as dr
-
-    return float(np.asarray(dr.detach(x).numpy()).reshape(-1)[0])
+        return np.clip(to_numpy(out.rgb, np.float32), 0.0, 1.0)

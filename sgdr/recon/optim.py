@@ -11,6 +11,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from sgdr.arrays import to_numpy
+
 
 def make_adam(params: Mapping[str, tuple[object, float]]):
     """Adam over {name: (Dr.Jit value, learning rate)}; each value is copied and made
@@ -27,33 +29,25 @@ def make_adam(params: Mapping[str, tuple[object, float]]):
     return opt
 
 
-def _np(x) -> np.ndarray:
-    return np.asarray(x.numpy() if hasattr(x, "numpy") else x)
-
-
 def adam_to_numpy(opt) -> dict[str, np.ndarray]:
     """Flatten an Adam's parameters and moments into {"<name>/value|t|m|v": array}."""
-    import drjit as dr
-
     out: dict[str, np.ndarray] = {}
     for name, (value, _promoted, _lr, extra) in opt.state.items():
         t, m_t, v_t, _vmax = extra
-        out[f"{name}/value"] = _np(dr.detach(value).array)
-        out[f"{name}/t"] = _np(t).reshape(-1)
-        out[f"{name}/m"] = _np(m_t)
-        out[f"{name}/v"] = _np(v_t)
+        out[f"{name}/value"] = to_numpy(value.array, None)
+        out[f"{name}/t"] = to_numpy(t, None).reshape(-1)
+        out[f"{name}/m"] = to_numpy(m_t, None)
+        out[f"{name}/v"] = to_numpy(v_t, None)
     return out
 
 
 def adam_from_numpy(opt, arrays: Mapping[str, np.ndarray]) -> None:
     """Restore values and moments saved by `adam_to_numpy` into an Adam with the same keys."""
-    import drjit as dr
-
     for name in list(opt.state.keys()):
         value, promoted, lr, extra = opt.state[name]
         flat_t = type(value.array)
         new_flat = flat_t(np.asarray(arrays[f"{name}/value"]))
-        if np.asarray(arrays[f"{name}/value"]).shape != _np(dr.detach(value).array).shape:
+        if np.asarray(arrays[f"{name}/value"]).shape != to_numpy(value.array, None).shape:
             raise ValueError(f"checkpoint: parameter {name!r} does not have the optimiser's shape")
         opt[name] = type(value)(new_flat)
         value, promoted, lr, extra = opt.state[name]

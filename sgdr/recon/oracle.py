@@ -21,9 +21,10 @@ from dataclasses import dataclass, field, replace
 import drjit as dr
 import numpy as np
 
+from sgdr.arrays import array3_to_points, points_to_array3, scalar, to_numpy
 from sgdr.metrics.geometry import chamfer_distance
 from sgdr.recon.baseline import BASELINES, ISSUE_BASELINES, physics_free_predictions
-from sgdr.recon.common import array3_to_points, points_to_array3, raised_ground
+from sgdr.recon.common import raised_ground
 
 
 @dataclass
@@ -91,17 +92,16 @@ def fit_tracks(tracks: np.ndarray, ground, gravity, v0, fps: float, n_fit: int, 
     from sgdr.recon.optim import make_adam
 
     t = ad()
-    cfg = replace(physics_cfg, grad_mode="full")
     n_frames, n_a = tracks.shape[0], tracks.shape[1]
     if not 2 <= n_fit <= n_frames:
         raise ValueError(f"oracle: n_fit={n_fit} must be in [2, {n_frames}] (frames of the tracks)")
-    model = build_spring_model(tracks[0], int(n_k), cfg)
-    base = PhysParams.init(model, cfg, v0=tuple(map(float, v0)), gravity=tuple(map(float, gravity)))
+    model = build_spring_model(tracks[0], int(n_k), physics_cfg)
+    base = PhysParams.init(model, physics_cfg, v0=tuple(map(float, v0)), gravity=tuple(map(float, gravity)))
     opt = make_adam({
         "log10_k": (t.Float(np.full(n_a, float(log10_k_init), np.float32)), recon_cfg.lr_log10_k),
-        "kappa": (t.Float(float(cfg.kappa_init)), recon_cfg.lr_kappa),
-        "friction": (t.Float(float(cfg.friction_init)), recon_cfg.lr_friction),
-        "restitution": (t.Float(float(cfg.restitution_init)), recon_cfg.lr_restitution),
+        "kappa": (t.Float(float(physics_cfg.kappa_init)), recon_cfg.lr_kappa),
+        "friction": (t.Float(float(physics_cfg.friction_init)), recon_cfg.lr_friction),
+        "restitution": (t.Float(float(physics_cfg.restitution_init)), recon_cfg.lr_restitution),
     })
     targets = [points_to_array3(tracks[f]) for f in range(n_frames)]
     dt_frame = 1.0 / float(fps)
@@ -118,7 +118,7 @@ def fit_tracks(tracks: np.ndarray, ground, gravity, v0, fps: float, n_fit: int, 
     losses = []
     for _ in steps:
         p = params()
-        states = rollout(model, p, SimState.at_rest(model, p.v0), ground, n_fit, dt_frame, cfg)
+        states = rollout(model, p, SimState.at_rest(model, p.v0), ground, n_fit, dt_frame, physics_cfg, grad_mode="full")
         loss = 0.0
         for f in range(1, n_fit):
             loss = loss + dr.mean(dr.squared_norm(states[f].x - targets[f]))
@@ -126,17 +126,17 @@ def fit_tracks(tracks: np.ndarray, ground, gravity, v0, fps: float, n_fit: int, 
         dr.backward(loss)
         opt.step()
         clamp_to_ranges(opt, recon_cfg)  # the stage's projection: log10 k, μ, e back into their ranges
-        losses.append(float(loss.numpy()[0]))
+        losses.append(scalar(loss))
         if progress:
             steps.set_postfix(loss=f"{losses[-1]:.3e}")
     with dr.suspend_grad():
         p = params().detach()
-        simulated = _rollout_points(model, p, ground, n_frames, dt_frame, cfg)
+        simulated = _rollout_points(model, p, ground, n_frames, dt_frame, physics_cfg)
         values = {
-            "log10_k": np.asarray(opt["log10_k"].numpy(), np.float64),
-            "kappa": float(opt["kappa"].numpy()[0]),
-            "friction": float(p.friction.numpy()[0]),
-            "restitution": float(p.restitution.numpy()[0]),
+            "log10_k": to_numpy(opt["log10_k"]),
+            "kappa": scalar(opt["kappa"]),
+            "friction": scalar(p.friction),
+            "restitution": scalar(p.restitution),
         }
     return values, losses, simulated
 
@@ -146,8 +146,7 @@ def _rollout_points(model, params, ground, n_frames: int, dt_frame: float, cfg) 
     from sgdr.physics import SimState, rollout
 
     with dr.suspend_grad():
-        states = rollout(model, params, SimState.at_rest(model, params.v0), ground, n_frames, dt_frame, cfg,
-                         grad_mode="truncated")
+        states = rollout(model, params, SimState.at_rest(model, params.v0), ground, n_frames, dt_frame, cfg)
         return np.stack([array3_to_points(s.x) for s in states])
 
 

@@ -31,7 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sgdr.recon.common import frame_targets, points_to_array3, raised_ground
+from sgdr.arrays import points_to_array3
+from sgdr.recon.common import frame_targets, raised_ground
 from sgdr.recon.stages import StageResult, StageRunner, file_hash, key_hash
 
 log = logging.getLogger(__name__)

@@ -14,7 +14,8 @@ from dataclasses import dataclass, replace
 import drjit as dr
 import numpy as np
 
-from sgdr.recon.common import array3_to_points, posed, render_rgb_numpy
+from sgdr.arrays import array3_to_points
+from sgdr.recon.common import posed, render_rgb_numpy
 
 
 @dataclass
@@ -63,7 +64,7 @@ def predict(model, params, binding, gaussians, ground, n_frames: int, fps: float
 
     with dr.suspend_grad():
         p = params.detach()
-        states = rollout(model, p, SimState.at_rest(model, p.v0), ground, int(n_frames), 1.0 / float(fps), physics_cfg, grad_mode="truncated", n_substeps=int(n_substeps))
+        states = rollout(model, p, SimState.at_rest(model, p.v0), ground, int(n_frames), 1.0 / float(fps), physics_cfg, n_substeps=int(n_substeps))
         anchors, centres, images = [], [], []
         frames = range(len(states))
         if progress:

@@ -18,7 +18,8 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from sgdr.recon.common import as_array3, isotropic_log_scale, scalar
+from sgdr.arrays import scalar
+from sgdr.recon.common import as_array3, isotropic_log_scale
 from sgdr.recon.config import ReconConfig
 from sgdr.recon.optim import make_adam
 

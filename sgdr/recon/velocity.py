@@ -25,7 +25,8 @@ import drjit as dr
 import numpy as np
 
 from sgdr.backend import ad
-from sgdr.recon.common import posed, scalar
+from sgdr.arrays import scalar, to_numpy
+from sgdr.recon.common import posed
 from sgdr.recon.config import ReconConfig
 from sgdr.recon.optim import make_adam
 
@@ -87,5 +88,5 @@ def fit_initial_velocity(
         dr.backward(loss)
         opt.step()
         losses.append(scalar(loss))
-    v0_np = np.asarray(dr.detach(opt["v0"]).numpy(), dtype=np.float64).reshape(3)
+    v0_np = to_numpy(opt["v0"]).reshape(3)
     return VelocityResult(v0_np, losses, frames)

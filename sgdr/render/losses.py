@@ -234,12 +234,3 @@ def mask_loss(alpha, mask):
     """Mean absolute difference between rendered accumulated opacity and a mask, both [H, W]
     (or [H, W, 1]) in [0, 1]."""
     return l1(_as_hwc(alpha, "alpha"), _as_hwc(mask, "mask"))
-
-
-def psnr(a, b) -> float:
-    """PSNR in dB for images in [0, 1] (NumPy, no gradient)."""
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    if a.shape != b.shape:
-        raise LossError(f"image sizes differ: {a.shape} vs {b.shape}")
-    mse = float(np.mean((a - b) ** 2))
-    return float("inf") if mse == 0 else -10.0 * np.log10(mse)

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
+from sgdr.arrays import to_numpy
 from sgdr.backend import ad
 from sgdr.registry import Registry
 from sgdr.synth.linalg import diag_conjugate, outer, sym_eig3
@@ -380,12 +381,12 @@ def simulate(model, params, state, n_frames, substeps_per_frame, cfl=1.0, progre
     the substep with `dr.freeze` (forward only; pass False when gradients are needed).
     """
     step = frozen_substep() if frozen else substep
-    frames = [state.x.numpy().T.copy()]
+    frames = [to_numpy(state.x, None).T.copy()]
     for f in range(1, n_frames):
         for _ in range(substeps_per_frame):
             state = step(model, params, state)
-        x = state.x.numpy().T.copy()
-        v_max = float(np.abs(state.v.numpy()).max())
+        x = to_numpy(state.x, None).T.copy()
+        v_max = float(np.abs(to_numpy(state.v, None)).max())
         if not np.all(np.isfinite(x)):
             raise MPMError(f"MPM diverged (non-finite positions) in frame {f}: lower synth.cfl")
         if v_max * model.dt > cfl * model.dx:

@@ -29,10 +29,13 @@ bench:
 data:
 	$(PYTHON) experiments/generate.py preset=$(PRESET) synth.object=all data_dir=data
 
-# Coulomb contact with restitution: on the small torus it predicts the future far better than
-# the official per-substep projection (README, "Measured on the small torus").
+# The default method (conf/method/spring_gaus.yaml) at the small preset; METHOD=official for the
+# official code's method.
+METHOD ?= spring_gaus
+# the run folders' <preset>[_<method>] part (sgdr.recon.pipeline.default_run_name)
+RUN_TAG = $(PRESET)$(if $(filter spring_gaus,$(METHOD)),,_$(METHOD))
 demo:
-	$(PYTHON) experiments/reconstruct.py preset=small synth.object=torus physics.contact=coulomb
+	$(PYTHON) experiments/reconstruct.py preset=small method=$(METHOD) synth.object=torus
 
 # The README's seven-object table: generate (or reuse) and reconstruct every object at the small
 # preset one after another (Hydra multirun, basic launcher: one process), then print the table.
@@ -41,15 +44,15 @@ comma := ,
 empty :=
 space := $(empty) $(empty)
 reproduce:
-	$(PYTHON) experiments/reconstruct.py -m preset=$(PRESET) physics.contact=coulomb \
+	$(PYTHON) experiments/reconstruct.py -m preset=$(PRESET) method=$(METHOD) \
 		synth.object=$(subst $(space),$(comma),$(OBJECTS))
-	$(PYTHON) -m evaluation.table $(foreach o,$(OBJECTS),outputs/$(o)_$(PRESET)_s0)
+	$(PYTHON) -m evaluation.table $(foreach o,$(OBJECTS),outputs/$(o)_$(RUN_TAG)_s0)
 
 # The identification upper bound: the model fitted to the generator's particle tracks instead of
 # images (README, "Oracle"). About 2.5 min for the small torus on the 2-core machine.
 OBJECT ?= torus
 oracle:
-	$(PYTHON) experiments/oracle.py preset=$(PRESET) synth.object=$(OBJECT) physics.contact=coulomb
+	$(PYTHON) experiments/oracle.py preset=$(PRESET) method=$(METHOD) synth.object=$(OBJECT)
 
 clean:
 	rm -rf outputs multirun .pytest_cache

@@ -1,7 +1,7 @@
 """Fit the spring-mass model to a generated sequence's ground-truth particle tracks: how far
 identification could go if rendering, static fit and v0 were perfect (`sgdr.recon.oracle`).
 
-    python experiments/oracle.py preset=small synth.object=torus physics.contact=coulomb
+    python experiments/oracle.py preset=small synth.object=torus
 
 Uses the same sequence as `experiments/reconstruct.py` (generated when missing), the preset's
 N_A, n_k and physics, and the dynamic stage's learning rates. Writes `oracle.json`,

@@ -1,7 +1,7 @@
 """The top-level typed config schema, assembled from each stage's own schema.
 
-Hydra composes `conf/config.yaml` (defaults: this schema, then the `preset` group, then
-overrides) and validates it against `Config`. `register()` puts the schema in Hydra's
+Hydra composes `conf/config.yaml` (defaults: this schema, then the `preset` group (scale),
+the `method` group (method), then overrides) and validates it against `Config`. `register()` puts the schema in Hydra's
 ConfigStore; entry points call it before `@hydra.main` runs (see `experiments/`).
 """
 
@@ -21,6 +21,7 @@ from sgdr.tracking.config import TrackingConfig
 @dataclass
 class Config:
     preset: str = "tiny"  # scale preset name: tiny | small | paper (set by the preset group)
+    method: str = "spring_gaus"  # method name: spring_gaus | official (set by the method group)
     backend: str = "llvm"  # "llvm" (CPU) | "cuda" (GPU)
     threads: int = 0  # Dr.Jit thread-pool size; 0 = all cores
     seed: int = 0  # seeds sampling, initialisation and camera choice

@@ -10,11 +10,11 @@ import pytest
 
 from sgdr.anchors import IDWBinding
 from sgdr.anchors.config import AnchorConfig
+from sgdr.arrays import points_to_array3
 from sgdr.cameras import Camera
 from sgdr.gaussians.model import Gaussians
 from sgdr.physics import Ground, SimState, build_spring_model, rollout
 from sgdr.physics.config import PhysicsConfig
-from sgdr.arrays import points_to_array3
 from sgdr.recon.common import frame_targets, posed, render_rgb_numpy, to_tensor
 from sgdr.recon.config import ReconConfig
 from sgdr.recon.dynamics import fit_dynamics, substeps_at
@@ -66,16 +66,34 @@ def scene():
                 ground=ground, v0=v0, seq=_Seq(images, cams), anchors=anchors)
 
 
-def test_substep_schedule_spans_the_passes():
-    assert [substeps_at([100, 150, 200], i, 6) for i in range(6)] == [100, 100, 150, 150, 200, 200]
-    assert substeps_at([40], 5, 6) == 40
+def test_substep_growth_spans_the_passes():
+    assert [substeps_at(100, [1.0, 1.5, 2.0], i, 6) for i in range(6)] == [100, 100, 150, 150, 200, 200]
+    assert substeps_at(40, [1.0], 5, 6) == 40
+    assert substeps_at(60, [1.0, 1.5], 1, 2) == 90  # physics.n_substeps scales the whole schedule
+
+
+def test_truncated_mode_doubles_the_substeps_of_an_unstable_frame_and_keeps_them(scene):
+    """The one remedy (physics.retry_on_nan): n_t doubled until the frame is stable, kept."""
+    from sgdr.physics import PhysParams, SimulationUnstable, stable_substeps
+
+    s = scene
+    targets = [frame_targets(s["seq"], f) for f in range(3)]
+    need = stable_substeps(s["model"], PhysParams.init(s["model"], s["pcfg"]), 1 / FPS, s["pcfg"])
+    n_sub = max(1, need // 3)
+    pcfg = replace(s["pcfg"], n_substeps=n_sub, max_substeps=64 * need)
+    cfg = ReconConfig(mode="truncated", iterations=2, substep_growth=[1.0], lr_log10_k=1e-4, lr_friction=1e-4)
+    args = (s["model"], s["binding"], s["bound"], s["v0"], np.array([0, 0, -9.8]), s["ground"], targets, s["cams"], FPS)
+    res = fit_dynamics(*args, pcfg, cfg, s["rcfg"], seed=0)
+    assert res.n_substeps >= need and res.n_substeps % n_sub == 0 and (res.n_substeps // n_sub) & (res.n_substeps // n_sub - 1) == 0
+    with pytest.raises(SimulationUnstable, match=r"raise physics.n_substeps"):
+        fit_dynamics(*args, replace(pcfg, retry_on_nan=False), cfg, s["rcfg"], seed=0)
 
 
 @pytest.mark.parametrize("mode,iterations,lr", [("truncated", 4, 0.15), ("full", 8, 0.2)])
 def test_dynamics_lowers_the_loss_and_moves_toward_the_truth(scene, mode, iterations, lr):
     s = scene
     pcfg = replace(s["pcfg"], log10_k_init=2.2, friction_init=0.9)
-    cfg = ReconConfig(mode=mode, iterations=iterations, substep_schedule=[40], lr_log10_k=lr, lr_friction=0.05, cameras_per_frame=2)
+    cfg = ReconConfig(mode=mode, iterations=iterations, substep_growth=[1.0], lr_log10_k=lr, lr_friction=0.05, cameras_per_frame=2)
     targets = [frame_targets(s["seq"], f) for f in range(7)]
     res = fit_dynamics(s["model"], s["binding"], s["bound"], s["v0"], np.array([0, 0, -9.8]), s["ground"], targets, s["cams"], FPS, pcfg, cfg, s["rcfg"], seed=0)
     assert res.eval_loss_final < 0.8 * res.eval_loss_initial, (res.eval_loss_initial, res.eval_loss_final)
@@ -90,10 +108,10 @@ def test_dynamics_checkpoint_resumes_to_the_same_result(scene, tmp_path):
     pcfg = replace(s["pcfg"], log10_k_init=2.2)
     targets = [frame_targets(s["seq"], f) for f in range(4)]
     args = (s["model"], s["binding"], s["bound"], s["v0"], np.array([0, 0, -9.8]), s["ground"], targets, s["cams"], FPS, pcfg)
-    whole = fit_dynamics(*args, ReconConfig(iterations=3, substep_schedule=[40], lr_log10_k=0.1), s["rcfg"], seed=1)
+    whole = fit_dynamics(*args, ReconConfig(iterations=3, substep_growth=[1.0], lr_log10_k=0.1), s["rcfg"], seed=1)
     ckpt = Checkpoint(tmp_path / "ckpt", "k")
-    fit_dynamics(*args, ReconConfig(iterations=2, substep_schedule=[40], lr_log10_k=0.1), s["rcfg"], seed=1, ckpt=ckpt)
-    resumed = fit_dynamics(*args, ReconConfig(iterations=3, substep_schedule=[40], lr_log10_k=0.1), s["rcfg"], seed=1, ckpt=ckpt)
+    fit_dynamics(*args, ReconConfig(iterations=2, substep_growth=[1.0], lr_log10_k=0.1), s["rcfg"], seed=1, ckpt=ckpt)
+    resumed = fit_dynamics(*args, ReconConfig(iterations=3, substep_growth=[1.0], lr_log10_k=0.1), s["rcfg"], seed=1, ckpt=ckpt)
     # float32 atomic scatter-adds in the backward sum in a thread-dependent order, so even two
     # uninterrupted runs differ in the last digits (measured: up to 6e-5 relative after 3 passes)
     np.testing.assert_allclose(resumed.log10_k, whole.log10_k, rtol=1e-4)
@@ -132,7 +150,7 @@ def test_log10_k_grid_starts_training_from_the_best_uniform_stiffness(scene):
     s = scene
     pcfg = replace(s["pcfg"], log10_k_init=1.5)
     targets = [frame_targets(s["seq"], f) for f in range(7)]
-    cfg = ReconConfig(iterations=1, substep_schedule=[40], lr_log10_k=1e-4, lr_friction=1e-4, log10_k_grid=[1.5, 3.0, 4.5])
+    cfg = ReconConfig(iterations=1, substep_growth=[1.0], lr_log10_k=1e-4, lr_friction=1e-4, log10_k_grid=[1.5, 3.0, 4.5])
     res = fit_dynamics(s["model"], s["binding"], s["bound"], s["v0"], np.array([0, 0, -9.8]), s["ground"], targets, s["cams"], FPS, pcfg, cfg, s["rcfg"], seed=0)
     assert set(res.k_grid) == {"1.5", "3", "4.5"}
     assert min(res.k_grid, key=res.k_grid.get) == "3", res.k_grid  # the generating stiffness

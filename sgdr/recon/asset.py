@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from sgdr.cameras import Camera
+from sgdr.registry import Registry
 
 
 def _plain(x):
@@ -163,27 +164,54 @@ def edited_values(asset: Asset, sim_cfg) -> tuple[dict, np.ndarray, float]:
 def simulate_asset(asset: Asset, sim_cfg, render_cfg, progress: bool = False):
     """Simulate the asset under `sim_cfg`'s edits; returns (Prediction, cameras used).
 
-    With `sim_cfg.cameras == "orbit"` frame t is rendered from orbit camera t (one turn over
-    the clip); with "sequence" every sequence camera renders every frame.
+    `sim_cfg.cameras` (`SIMULATE_CAMERAS`): "sequence", every sequence camera renders every
+    frame; "orbit", frame t is rendered from orbit camera t (one turn over the clip). The
+    substeps per frame are `sim_cfg.n_substeps` (recon.simulate.n_substeps), 0 = the n_t the
+    asset reached in training; an unstable rollout says so.
     """
-    from sgdr.physics import Ground
-    from sgdr.recon.common import posed, render_rgb_numpy
-    from sgdr.recon.predict import Prediction, physical_params, predict
+    from sgdr.physics import Ground, SimulationUnstable
+    from sgdr.recon.predict import physical_params
 
+    render_with = SIMULATE_CAMERAS.get_named(sim_cfg.cameras)
     model, binding = asset.build()
     values, point, _ = edited_values(asset, sim_cfg)
     ground = Ground(point, asset.ground_normal)
     params = physical_params(model, asset.physics, values)
     n_frames = int(sim_cfg.n_frames) or asset.n_frames
     n_t = int(sim_cfg.n_substeps) or asset.n_substeps
-    if sim_cfg.cameras == "sequence":
-        return predict(model, params, binding, asset.gaussians, ground, n_frames, asset.fps, n_t, asset.physics, asset.cameras, render_cfg, True, progress), asset.cameras
-    if sim_cfg.cameras != "orbit":
-        raise ValueError(f"recon.simulate.cameras must be 'sequence' or 'orbit', got {sim_cfg.cameras!r}")
-    traj = predict(model, params, binding, asset.gaussians, ground, n_frames, asset.fps, n_t, asset.physics, [], render_cfg, False, progress)
-    cams = orbit_cameras(asset, n_frames)
-    from sgdr.arrays import points_to_array3
+    try:
+        return render_with(asset, model, params, binding, ground, n_frames, n_t, render_cfg, progress)
+    except SimulationUnstable as exc:
+        raise SimulationUnstable(
+            f"simulating the asset with n_t={n_t}: {exc}. Here n_t is recon.simulate.n_substeps (0 = the asset's "
+            f"{asset.n_substeps}): raise recon.simulate.n_substeps, not physics.n_substeps"
+        ) from exc
 
+
+# How `simulate_asset` renders (recon.simulate.cameras): (asset, model, params, binding, ground,
+# n_frames, n_t, render_cfg, progress) -> (Prediction, cameras).
+SIMULATE_CAMERAS = Registry("simulate camera set", "recon.simulate.cameras", ValueError)
+
+
+@SIMULATE_CAMERAS.register("sequence")
+def simulate_sequence_cameras(asset, model, params, binding, ground, n_frames, n_t, render_cfg, progress):
+    """Every sequence camera renders every frame."""
+    from sgdr.recon.predict import predict
+
+    return predict(model, params, binding, asset.gaussians, ground, n_frames, asset.fps, n_t, asset.physics,
+                   asset.cameras, render_cfg, True, progress), asset.cameras
+
+
+@SIMULATE_CAMERAS.register("orbit")
+def simulate_orbit_cameras(asset, model, params, binding, ground, n_frames, n_t, render_cfg, progress):
+    """Frame t from orbit camera t: one turn around the object over the clip."""
+    from sgdr.arrays import points_to_array3
+    from sgdr.recon.common import posed, render_rgb_numpy
+    from sgdr.recon.predict import Prediction, predict
+
+    traj = predict(model, params, binding, asset.gaussians, ground, n_frames, asset.fps, n_t, asset.physics, [],
+                   render_cfg, False, progress)
+    cams = orbit_cameras(asset, n_frames)
     images = []
     for f in range(n_frames):
         g = posed(asset.gaussians, points_to_array3(traj.centres[f]))

@@ -13,7 +13,7 @@ class SimulateConfig:
     out_dir: str = ""  # where videos go ("" = <asset>/../simulate/<tag>)
     tag: str = "edited"  # name of this simulation's output folder
     n_frames: int = 0  # frames to simulate (0 = the sequence's)
-    n_substeps: int = 0  # n_t (0 = the value reached in training)
+    n_substeps: int = 0  # n_t (0 = the value reached in training); the substeps of this run, not physics.n_substeps
     ground_height: float = 0.0  # ground plane moved along its normal, scene units
     friction: float = -1.0  # ground friction (< 0 = the identified value)
     gravity: list[float] = field(default_factory=list)  # [3] m/s² (empty = the identified/sequence's)
@@ -41,7 +41,8 @@ class OracleConfig:
 class ReconConfig:
     iterations: int = 200  # dynamic-reconstruction passes over the fit frames
     lambda_dssim: float = 0.05  # λ of the dynamic loss
-    substep_schedule: list[int] = field(default_factory=lambda: [100, 150, 200])  # n_t over iters
+    substep_growth: list[float] = field(default_factory=lambda: [1.0, 1.5, 2.0])  # n_t = physics.n_substeps x
+    #   these factors, split into equal spans over the passes (official: 100 -> 150 -> 200)
     cameras_per_frame: int = 1  # random cameras rendered per frame (official: 1)
     lr_log10_k: float = 1e-2  # Adam, per-anchor log10 k_i
     lr_kappa: float = 1e-2  # Adam, soft vector κ
@@ -67,7 +68,6 @@ class ReconConfig:
     log10_k_min: float = 0.0  # log10 k_i is clamped to [min, max] after each step
     log10_k_max: float = 7.0
     friction_max: float = 1.0  # friction clamped to [0, friction_max] after each step
-    nan_substep_increase: int = 50  # n_t grows by this on a non-finite frame (official remedy)
     checkpoint_every: int = 1  # dynamic passes between checkpoints (0 = never)
     output_dir: str = "outputs"  # runs go to <output_dir>/<run_name>
     run_name: str = ""  # "" = <object>_<preset>_s<seed>

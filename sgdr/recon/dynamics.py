@@ -14,18 +14,27 @@ rate per parameter (`recon.lr_*`); after every step log10 k_i is clipped to
 [recon.log10_k_min, recon.log10_k_max], friction to [0, recon.friction_max], restitution to
 [0, 1] (Adam's moments are kept).
 
-Two schedules (`recon.mode`):
+Two schedules (`recon.mode`, the registry `RECON_MODES`):
 - `truncated` (official): each frame starts from the *detached* previous state, one random
   camera (`recon.cameras_per_frame`) is rendered, and Adam steps after every frame: the
   gradient of L_f reaches θ only through the last frame's n_t substeps. Memory: one frame's
-  tape. If a frame becomes unstable (NaN/inf, `SimulationUnstable`) it is redone with
-  `recon.nan_substep_increase` more substeps, kept for the rest of training (official remedy).
+  tape.
 - `full`: the whole fit window is simulated with gradients through every frame
   (`rollout(grad_mode="full")`), the losses of all frames (cameras_per_frame random cameras
   each) are averaged and Adam steps once per pass. Memory: O(n_fit x n_t x N_A) (see
   sgdr.physics.simulate), heavier and slower per step but without truncation bias.
 
-n_t follows `recon.substep_schedule` over the passes (official: 100 -> 150 -> 200).
+n_t of pass i is physics.n_substeps x recon.substep_growth[k], the growth factors split into
+equal spans over the passes (official: 100 x [1, 1.5, 2] = 100 -> 150 -> 200).
+
+Unstable frames (NaN/inf or the stability bound, `SimulationUnstable`) have one remedy, the
+official one, owned by the simulator: n_t is doubled (`doubled_substeps`, with
+physics.retry_on_nan, up to physics.max_substeps). In `full` mode `rollout` applies it inside
+the pass and the next pass starts again from the growth schedule: the rollout re-derives the
+need from the stability bound with the current parameters, so the stage keeps no hidden n_t.
+In `truncated` mode the frames are simulated one by one with an Adam step in between, so
+there is no whole rollout to redo: the unstable frame is redone with the doubled n_t, which
+is kept for the rest of training (as the official code keeps its raised n_t).
 
 Optional coarse start (`recon.log10_k_grid`, not in the official code): before the first pass
 every listed uniform log10 k is scored by the deterministic all-view rollout loss and the best
@@ -48,9 +57,11 @@ from dataclasses import dataclass, field, replace
 import drjit as dr
 import numpy as np
 
-from sgdr.recon.common import posed, scalar
+from sgdr.arrays import scalar, to_numpy
+from sgdr.recon.common import posed
 from sgdr.recon.config import ReconConfig
 from sgdr.recon.optim import adam_from_numpy, adam_to_numpy, make_adam
+from sgdr.registry import Registry
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +72,7 @@ class DynamicsResult:
     kappa: float  # soft vector κ
     friction: float  # ground friction μ
     restitution: float  # restitution e ("coulomb" contact; unchanged otherwise)
-    n_substeps: int  # n_t at the end of training (schedule end, raised on NaN)
+    n_substeps: int  # n_t at the end of training (growth schedule end; raised by the remedy in truncated mode)
     pass_losses: list[float] = field(default_factory=list)  # mean training loss per pass
     eval_loss_initial: float = float("nan")  # all views, all fit frames, before training
     eval_loss_final: float = float("nan")  # the same after training
@@ -69,19 +80,19 @@ class DynamicsResult:
 
 
 def learnable_names(physics_cfg) -> list[str]:
-    """PhysParams fields optimised by the dynamic stage."""
-    names = ["log10_k", "kappa", "friction"]
-    if physics_cfg.contact == "coulomb":
-        names.append("restitution")
-    return names
+    """PhysParams fields optimised by the dynamic stage: log10 k_i, κ and the contact's Θ(B)."""
+    from sgdr.physics.laws import CONTACT_PARAMETERS
+
+    return ["log10_k", "kappa", *CONTACT_PARAMETERS.get_named(physics_cfg.contact)]
 
 
-def substeps_at(schedule: list[int], it: int, iterations: int) -> int:
-    """n_t of pass `it`: the schedule split into equal spans over the passes."""
-    if not schedule:
-        raise ValueError("recon.substep_schedule is empty")
-    k = min(len(schedule) - 1, (it * len(schedule)) // max(1, iterations))
-    return int(schedule[k])
+def substeps_at(n_substeps: int, growth: list[float], it: int, iterations: int) -> int:
+    """n_t of pass `it`: n_substeps (physics.n_substeps) times the growth factor of its span,
+    the factors (recon.substep_growth) split into equal spans over the passes."""
+    if not growth:
+        raise ValueError("recon.substep_growth is empty")
+    k = min(len(growth) - 1, (it * len(growth)) // max(1, iterations))
+    return int(round(int(n_substeps) * float(growth[k])))
 
 
 def _lr(cfg: ReconConfig, name: str) -> float:
@@ -111,7 +122,7 @@ def rollout_loss(model, params, binding, gaussians, v0, ground, targets, cameras
 
     with dr.suspend_grad():
         state0 = SimState.at_rest(model, v0)
-        states = rollout(model, params.detach(), state0, ground, len(targets), dt, physics_cfg, grad_mode="truncated", n_substeps=n_t)
+        states = rollout(model, params.detach(), state0, ground, len(targets), dt, physics_cfg, n_substeps=n_t)
         total, count = 0.0, 0
         for f in range(1, len(targets)):
             g = posed(gaussians, binding.apply(states[f].x))
@@ -131,6 +142,95 @@ def _frame_loss(gaussians, binding, x, targets_f, cameras, views, render_cfg, la
     for v in views:
         loss = loss + image_loss(render(g, cameras[int(v)], render_cfg).rgb, targets_f[int(v)], lam)
     return loss / float(len(views))
+
+
+@dataclass
+class _Pass:
+    """What one training pass reads: the fixed inputs of `fit_dynamics`."""
+
+    model: object  # SpringModel
+    binding: object  # IDWBinding
+    gaussians: object  # Gaussians, detached (appearance fixed)
+    base: object  # PhysParams; the learnable fields come from the optimiser
+    v0: tuple  # (3,) initial velocity
+    ground: object  # physics Ground
+    targets: list  # [n_fit][n_views] TensorXf [H, W, 3]
+    cameras: list
+    dt: float  # seconds per frame
+    physics_cfg: object  # PhysicsConfig
+    cfg: ReconConfig
+    render_cfg: object
+    lam: float  # λ of the loss
+    per_frame: int  # cameras rendered per frame
+
+
+# How one pass over the fit frames trains (`recon.mode`): (pass inputs, Adam, rng, n_t) ->
+# (loss of every fit frame, n_t for the rest of training).
+RECON_MODES = Registry("reconstruction mode", "recon.mode", ValueError)
+
+
+@RECON_MODES.register("truncated")
+def pass_truncated(p: _Pass, opt, rng, n_t: int) -> tuple[list[float], int]:
+    """Official: frame by frame from the detached previous state, an Adam step per frame. An
+    unstable frame is redone with the doubled n_t, kept for the rest of training (module doc)."""
+    from sgdr.physics import SimState, SimulationUnstable, doubled_substeps, simulate_frame
+
+    frame_losses: list[float] = []
+    state = SimState.at_rest(p.model, p.v0)
+    for f in range(1, len(p.targets)):
+        views = rng.choice(len(p.cameras), size=p.per_frame, replace=False)
+        while True:
+            params = _with_opt(p.base, opt)
+            try:
+                new = simulate_frame(p.model, params, state, p.ground, p.dt, n_t, p.physics_cfg)
+                loss = _frame_loss(p.gaussians, p.binding, new.x, p.targets[f], p.cameras, views, p.render_cfg, p.lam)
+                value = scalar(loss)
+            except SimulationUnstable:
+                value = float("nan")
+            if math.isfinite(value):
+                break
+            more = doubled_substeps(n_t, p.physics_cfg)
+            if more is None:
+                raise SimulationUnstable(
+                    f"dynamics: frame {f} is unstable with n_t={n_t} (NaN/inf or the stability bound) and "
+                    f"physics.retry_on_nan={p.physics_cfg.retry_on_nan} / physics.max_substeps="
+                    f"{p.physics_cfg.max_substeps} allow no more substeps; raise physics.n_substeps or "
+                    f"physics.max_substeps, or lower recon.lr_log10_k or recon.log10_k_max"
+                )
+            n_t = more
+            log.warning("dynamics: non-finite frame %d, n_t raised to %d", f, n_t)
+        dr.backward(loss)
+        opt.step()
+        clamp_to_ranges(opt, p.cfg)
+        frame_losses.append(value)
+        state = new.detach()
+        dr.eval(state.x, state.v)
+    return frame_losses, n_t
+
+
+@RECON_MODES.register("full")
+def pass_full(p: _Pass, opt, rng, n_t: int) -> tuple[list[float], int]:
+    """Gradients through every fit frame, one Adam step per pass; `rollout` applies the
+    substep remedy within the pass, so the pass's n_t is returned unchanged (module doc)."""
+    from sgdr.physics import SimState, rollout
+
+    params = _with_opt(p.base, opt)
+    states = rollout(p.model, params, SimState.at_rest(p.model, p.v0), p.ground, len(p.targets), p.dt, p.physics_cfg,
+                     grad_mode="full", n_substeps=n_t)
+    frame_losses: list[float] = []
+    loss = 0.0
+    for f in range(1, len(p.targets)):
+        views = rng.choice(len(p.cameras), size=p.per_frame, replace=False)
+        lf = _frame_loss(p.gaussians, p.binding, states[f].x, p.targets[f], p.cameras, views, p.render_cfg, p.lam)
+        loss = loss + lf
+        frame_losses.append(scalar(lf))
+    loss = loss / float(len(p.targets) - 1)
+    if not math.isfinite(scalar(loss)):
+        raise RuntimeError(f"dynamics (full): non-finite loss with n_t={states.n_substeps}; raise physics.n_substeps")
+    dr.backward(loss)
+    opt.step()
+    clamp_to_ranges(opt, p.cfg)
+    return frame_losses, n_t
 
 
 def fit_dynamics(
@@ -158,19 +258,21 @@ def fit_dynamics(
     [n_fit][n_views] TensorXf [H, W, 3]; fps: frames per second. ckpt: a stage Checkpoint or
     None. on_pass(pass, mean loss, n_t) is called after every pass (tracking).
     """
-    from sgdr.physics import PhysParams, SimState, SimulationUnstable, rollout, simulate_frame
+    from sgdr.physics import PhysParams
 
-    if cfg.mode not in ("truncated", "full"):
-        raise ValueError(f"recon.mode must be 'truncated' or 'full', got {cfg.mode!r}")
+    train_pass = RECON_MODES.get_named(cfg.mode)
     n_fit = len(targets)
     if n_fit < 2:
         raise ValueError(f"dynamic reconstruction needs at least 2 fit frames, the sequence has n_fit={n_fit}")
     dt = 1.0 / float(fps)
     lam = float(cfg.lambda_dssim)
-    n_views = len(cameras)
-    per_frame = max(1, min(int(cfg.cameras_per_frame), n_views))
+    per_frame = max(1, min(int(cfg.cameras_per_frame), len(cameras)))
     base = PhysParams.init(model, physics_cfg, v0=tuple(map(float, v0)), gravity=tuple(map(float, gravity)))
-    n_t0 = substeps_at(list(cfg.substep_schedule), 0, cfg.iterations)
+
+    def schedule(it: int) -> int:
+        return substeps_at(physics_cfg.n_substeps, list(cfg.substep_growth), it, cfg.iterations)
+
+    n_t0 = schedule(0)
     resumed = ckpt.load() if ckpt is not None else None
     k_grid: dict[str, float] = {}
     if resumed is None and cfg.log10_k_grid:
@@ -185,6 +287,8 @@ def fit_dynamics(
         dr.make_opaque(base.log10_k)
     opt = make_adam({name: (getattr(base, name), _lr(cfg, name)) for name in learnable_names(physics_cfg)})
     g = gaussians.detach()
+    inputs = _Pass(model, binding, g, base, tuple(map(float, v0)), ground, targets, cameras, dt, physics_cfg, cfg,
+                   render_cfg, lam, per_frame)
 
     # ---- resume or start
     start, pass_losses, n_t_floor = 0, [], 0
@@ -205,55 +309,13 @@ def fit_dynamics(
         from tqdm import tqdm
 
         passes = tqdm(passes, desc=f"dynamics ({cfg.mode})", initial=start, total=int(cfg.iterations), leave=False)
-    n_t = max(substeps_at(list(cfg.substep_schedule), start, cfg.iterations), n_t_floor)
+    n_t = max(schedule(start), n_t_floor)
     for it in passes:
         rng = np.random.default_rng([int(seed), it])
-        n_t = max(substeps_at(list(cfg.substep_schedule), it, cfg.iterations), n_t_floor)
-        frame_losses: list[float] = []
-        if cfg.mode == "truncated":
-            # ---- official schedule: frame by frame from the detached previous state
-            state = SimState.at_rest(model, tuple(map(float, v0)))
-            for f in range(1, n_fit):
-                views = rng.choice(n_views, size=per_frame, replace=False)
-                while True:
-                    params = _with_opt(base, opt)
-                    try:
-                        new = simulate_frame(model, params, state, ground, dt, n_t, physics_cfg)
-                        loss = _frame_loss(g, binding, new.x, targets[f], cameras, views, render_cfg, lam)
-                        value = scalar(loss)
-                    except SimulationUnstable:
-                        value = float("nan")
-                    if math.isfinite(value):
-                        break
-                    n_t = n_t_floor = n_t + int(cfg.nan_substep_increase)
-                    if n_t > physics_cfg.max_substeps:
-                        raise RuntimeError(
-                            f"dynamics: frame {f} stays unstable with n_t={n_t} > physics.max_substeps="
-                            f"{physics_cfg.max_substeps}; lower recon.lr_log10_k or recon.log10_k_max"
-                        )
-                    log.warning("dynamics: non-finite frame %d, n_t raised to %d", f, n_t)
-                dr.backward(loss)
-                opt.step()
-                clamp_to_ranges(opt, cfg)
-                frame_losses.append(value)
-                state = new.detach()
-                dr.eval(state.x, state.v)
-        else:
-            # ---- full: gradients through every fit frame, one step per pass
-            params = _with_opt(base, opt)
-            states = rollout(model, params, SimState.at_rest(model, tuple(map(float, v0))), ground, n_fit, dt, physics_cfg, grad_mode="full", n_substeps=n_t)
-            loss = 0.0
-            for f in range(1, n_fit):
-                views = rng.choice(n_views, size=per_frame, replace=False)
-                lf = _frame_loss(g, binding, states[f].x, targets[f], cameras, views, render_cfg, lam)
-                loss = loss + lf
-                frame_losses.append(scalar(lf))
-            loss = loss / float(n_fit - 1)
-            if not math.isfinite(scalar(loss)):
-                raise RuntimeError(f"dynamics (full): non-finite loss at pass {it}; raise physics.n_substeps")
-            dr.backward(loss)
-            opt.step()
-            clamp_to_ranges(opt, cfg)
+        n_t = max(schedule(it), n_t_floor)
+        frame_losses, n_t_after = train_pass(inputs, opt, rng, n_t)
+        if n_t_after > n_t:
+            n_t = n_t_floor = n_t_after
         pass_losses.append(float(np.mean(frame_losses)))
         if on_pass is not None:
             on_pass(it, pass_losses[-1], n_t)
@@ -272,15 +334,11 @@ def fit_dynamics(
 
     final = _with_opt(base, opt).detach()
     eval_final = rollout_loss(model, final, binding, g, v0, ground, targets, cameras, dt, n_t, physics_cfg, render_cfg, lam)
-
-    def host(x) -> np.ndarray:
-        return np.asarray(dr.detach(x).numpy(), dtype=np.float64).reshape(-1)
-
     return DynamicsResult(
-        log10_k=host(final.log10_k),
-        kappa=float(host(final.kappa)[0]),
-        friction=float(host(final.friction)[0]),
-        restitution=float(host(final.restitution)[0]),
+        log10_k=to_numpy(final.log10_k).reshape(-1),
+        kappa=scalar(final.kappa),
+        friction=scalar(final.friction),
+        restitution=scalar(final.restitution),
         n_substeps=int(n_t),
         pass_losses=pass_losses,
         eval_loss_initial=eval_initial,

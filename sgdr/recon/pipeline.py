@@ -5,8 +5,11 @@
 
 Each stage runs through `StageRunner` in `<run_dir>/<stage>/`: a rerun skips stages whose
 outputs verify, `recon.force=true` redoes them, a damaged output is redone (see
-`sgdr.recon.stages`). Every stage key holds its config section, the digests of its inputs
-and the sequence's digest, so changing a setting redoes that stage and everything after it.
+`sgdr.recon.stages`). Every stage key holds the whole config sections the stage reads
+(`stage_sections`), the digests of its inputs and the sequence's digest, so changing a
+setting redoes that stage and everything after it; a field is left out of a key only by the
+explicit lists below (`RECON_NEVER_IN_KEYS`, `RECON_STAGE_FIELDS`), so a forgotten field
+errs on the side of recomputing.
 The run folder also gets `config.yaml`, `metrics.json` and an MLflow run (`sgdr.tracking`).
 
 Stage outputs (all under the run folder):
@@ -47,9 +50,62 @@ class RunOutputs:
     stages: dict[str, StageResult] = field(default_factory=dict)
 
 
+# ------------------------------------------------------------------------------ stage keys
+# recon fields that change no stage's outputs: where the run goes, whether to redo, how many
+# processes score the EMD (the scores do not depend on it), how often to checkpoint (a resume
+# is exact), and the settings of the other tools (experiments/simulate.py, oracle.py).
+RECON_NEVER_IN_KEYS = ("output_dir", "run_name", "force", "eval_workers", "checkpoint_every", "simulate", "oracle")
+# recon fields that only one stage reads: the other stages leave them out of their keys (a
+# stage after it sees them through its input digests). A recon field in none of these lists
+# is in the key of every stage that reads `recon`.
+RECON_STAGE_FIELDS = {
+    "refine": ("refine_iterations", "lr_scale", "lr_color", "lr_opacity", "refine_lambda_dssim"),
+    "velocity": ("v0_iterations", "lr_v0", "v0_lambda_dssim", "v0_views_per_step"),
+    "dynamics": ("iterations", "lambda_dssim", "substep_growth", "cameras_per_frame", "lr_log10_k", "lr_kappa",
+                 "lr_friction", "lr_restitution", "mode", "log10_k_grid", "log10_k_min", "log10_k_max",
+                 "friction_max", "contact_margin"),
+    "evaluate": ("eval_emd",),
+    "report": ("render_videos", "write_plys"),
+}
+
+
+def recon_section(cfg, stage: str) -> dict:
+    """The `recon` section as stage `stage` sees it for its key: every field except
+    `RECON_NEVER_IN_KEYS` and the fields other stages own (`RECON_STAGE_FIELDS`)."""
+    from sgdr.recon.stages import _plain
+
+    others = {f for name, fields in RECON_STAGE_FIELDS.items() if name != stage for f in fields}
+    return {k: v for k, v in _plain(cfg.recon).items() if k not in others and k not in RECON_NEVER_IN_KEYS}
+
+
+# The config sections each stage reads, whole, in its key (besides seeds and input digests).
+STAGE_SECTIONS = {
+    "static": ("static_fit", "render"),
+    "anchors": ("anchors",),
+    "refine": ("recon", "anchors", "render"),
+    "velocity": ("recon", "render"),
+    "dynamics": ("recon", "physics", "anchors", "render"),
+    "predict": ("physics", "anchors", "render"),
+    "evaluate": ("recon",),
+    "report": ("recon",),
+    "asset": ("physics", "anchors"),
+}
+
+
+def stage_sections(cfg, stage: str) -> dict:
+    """{section: its whole config} for the sections `stage` reads (`recon` via `recon_section`)."""
+    return {name: recon_section(cfg, stage) if name == "recon" else getattr(cfg, name) for name in STAGE_SECTIONS[stage]}
+
+
 # ------------------------------------------------------------------------------ locating
+DEFAULT_METHOD = "spring_gaus"  # conf/config.yaml's default method group
+
+
 def default_run_name(cfg) -> str:
-    return cfg.recon.run_name or f"{cfg.synth.object}_{cfg.preset}_s{cfg.seed}"
+    """recon.run_name, or `<object>_<preset>_s<seed>` (`<object>_<preset>_<method>_s<seed>` for
+    a method other than the default, so that two methods never share a run folder)."""
+    method = "" if cfg.method == DEFAULT_METHOD else f"_{cfg.method}"
+    return cfg.recon.run_name or f"{cfg.synth.object}_{cfg.preset}{method}_s{cfg.seed}"
 
 
 def sequence_path(cfg) -> Path:
@@ -180,7 +236,7 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
 
     stages["static"] = runner.run(
         "static",
-        {"static_fit": cfg.static_fit, "render": cfg.render, "seed": cfg.seed, "sequence": seq_hash},
+        {**stage_sections(cfg, "static"), "seed": cfg.seed, "sequence": seq_hash},
         static_produce,
         lambda out: load_ply(out / "gaussians.ply"),
     )
@@ -200,7 +256,7 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
 
     stages["anchors"] = runner.run(
         "anchors",
-        {"anchors": cfg.anchors, "seed": cfg.seed, "input": stages["static"].digest},
+        {**stage_sections(cfg, "anchors"), "seed": cfg.seed, "input": stages["static"].digest},
         anchors_produce,
         anchors_load,
     )
@@ -217,11 +273,10 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
         save_ply(out / "gaussians.ply", res.gaussians)
         (out / "losses.json").write_text(json.dumps(res.losses))
 
-    refine_keys = ("refine_iterations", "lr_scale", "lr_color", "lr_opacity", "refine_lambda_dssim")
     stages["refine"] = runner.run(
         "refine",
-        {"recon": {k: getattr(cfg.recon, k) for k in refine_keys}, "anchors": cfg.anchors,
-         "render": cfg.render, "seed": cfg.seed, "input": [stages["static"].digest, stages["anchors"].digest]},
+        {**stage_sections(cfg, "refine"), "seed": cfg.seed,
+         "input": [stages["static"].digest, stages["anchors"].digest]},
         refine_produce,
         lambda out: (load_ply(out / "gaussians.ply"), json.loads((out / "losses.json").read_text())),
     )
@@ -244,10 +299,9 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
             raise ValueError("velocity.json: v0 must have 3 entries")
         return d
 
-    v0_keys = ("v0_iterations", "lr_v0", "v0_lambda_dssim", "v0_views_per_step")
     stages["velocity"] = runner.run(
         "velocity",
-        {"recon": {k: getattr(cfg.recon, k) for k in v0_keys}, "render": cfg.render, "seed": cfg.seed,
+        {**stage_sections(cfg, "velocity"), "seed": cfg.seed,
          "sequence": seq_hash, "input": stages["refine"].digest},
         velocity_produce,
         velocity_load,
@@ -285,13 +339,10 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
             raise ValueError(f"params.npz: log10_k has shape {d['log10_k'].shape}, expected ({anchors.shape[0]},)")
         return d
 
-    dyn_keys = ("iterations", "lambda_dssim", "substep_schedule", "cameras_per_frame", "lr_log10_k", "lr_kappa",
-                "lr_friction", "lr_restitution", "mode", "log10_k_min", "log10_k_max", "friction_max",
-                "nan_substep_increase", "contact_margin", "log10_k_grid")
     stages["dynamics"] = runner.run(
         "dynamics",
-        {"recon": {k: getattr(cfg.recon, k) for k in dyn_keys}, "physics": cfg.physics, "render": cfg.render,
-         "seed": cfg.seed, "sequence": seq_hash, "input": [stages["refine"].digest, stages["velocity"].digest]},
+        {**stage_sections(cfg, "dynamics"), "seed": cfg.seed,
+         "sequence": seq_hash, "input": [stages["refine"].digest, stages["velocity"].digest]},
         dynamics_produce,
         dynamics_load,
     )
@@ -320,7 +371,8 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
 
     stages["predict"] = runner.run(
         "predict",
-        {"physics": cfg.physics, "render": cfg.render, "input": [stages["dynamics"].digest, stages["velocity"].digest]},
+        {**stage_sections(cfg, "predict"),
+         "input": [stages["dynamics"].digest, stages["velocity"].digest]},
         predict_produce,
         predict_load,
     )
@@ -335,7 +387,8 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
 
     stages["evaluate"] = runner.run(
         "evaluate",
-        {"eval_emd": cfg.recon.eval_emd, "seed": cfg.seed, "sequence": seq_hash, "input": stages["predict"].digest},
+        {**stage_sections(cfg, "evaluate"), "seed": cfg.seed, "sequence": seq_hash,
+         "input": stages["predict"].digest},
         evaluate_produce,
         lambda out: json.loads((out / "scores.json").read_text()),
     )
@@ -361,7 +414,7 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
 
     stages["report"] = runner.run(
         "report",
-        {"render_videos": cfg.recon.render_videos, "write_plys": cfg.recon.write_plys,
+        {**stage_sections(cfg, "report"),
          "input": [stages["predict"].digest, stages["evaluate"].digest, stages["refine"].digest]},
         report_produce,
         lambda out: sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file()),
@@ -381,7 +434,8 @@ def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool
 
     stages["asset"] = runner.run(
         "asset",
-        {"input": [stages["dynamics"].digest, stages["refine"].digest, stages["velocity"].digest], "sequence": seq_hash,
+        {**stage_sections(cfg, "asset"),
+         "input": [stages["dynamics"].digest, stages["refine"].digest, stages["velocity"].digest], "sequence": seq_hash,
          "ground_point": ground.point.tolist()},
         asset_produce,
         asset_load,

@@ -5,9 +5,13 @@ files into `out_dir`, plus a `load(out_dir: Path) -> T` that reads them back. `S
 runs it in `run_dir/<name>/` under these rules:
 
 - **Completion marker, written last.** After `produce` returns, the runner hashes every file
-  it wrote (SHA-256) and writes `DONE.json` atomically (temp file + rename) with the hash of
-  the stage's *key* (its config and the digests of its inputs) and the file hashes. A stage
-  that crashed, or was killed mid-write, has no marker.
+  it wrote (SHA-256) and writes `DONE.json` atomically (temp file + rename) with the stage's
+  *key* (its whole config sections and the digests of its inputs, as JSON), the key's hash and
+  the file hashes. A stage that crashed, or was killed mid-write, has no marker.
+- **Keys are portable.** A key holds config values, seeds and content digests, never paths
+  or times, serialised as JSON with sorted keys (floats by their shortest repr): a run folder
+  copied to another machine resumes there. When a key differs, the log line names the
+  changed entries (`recon.iterations: 20 -> 30`).
 - **Skip only what verifies.** A rerun skips the stage when the marker parses, its key hash
   equals the current one, every listed file exists with the recorded hash, and `load`
   succeeds. Anything else (missing marker, other config or inputs, a truncated, edited or
@@ -70,6 +74,29 @@ def _plain(x: Any) -> Any:
     if isinstance(x, Path):
         return str(x)
     return x
+
+
+def _flatten(x: Any, prefix: str = "") -> dict[str, Any]:
+    """{"a.b.c": leaf} of a nested JSON-able value (lists are leaves)."""
+    if isinstance(x, Mapping) and x:
+        out: dict[str, Any] = {}
+        for k, v in x.items():
+            out.update(_flatten(v, f"{prefix}.{k}" if prefix else str(k)))
+        return out
+    return {prefix: x}
+
+
+def changed_entries(old: Any, new: Any, limit: int = 6) -> str:
+    """The entries of two stage keys that differ, as `name: old -> new`, comma separated."""
+    a, b = _flatten(json.loads(json.dumps(_plain(old), default=str))), _flatten(json.loads(json.dumps(_plain(new), default=str)))
+    names = sorted(k for k in a.keys() | b.keys() if a.get(k, "<absent>") != b.get(k, "<absent>"))
+
+    def show(v) -> str:
+        text = json.dumps(v) if v != "<absent>" else v
+        return text if len(text) <= 40 else text[:16] + "..." + text[-8:]
+
+    parts = [f"{k}: {show(a.get(k, '<absent>'))} -> {show(b.get(k, '<absent>'))}" for k in names[:limit]]
+    return ", ".join(parts) + (f" and {len(names) - limit} more" if len(names) > limit else "")
 
 
 def file_hash(path: Path) -> str:
@@ -151,7 +178,7 @@ class StageRunner:
     def stage_dir(self, name: str) -> Path:
         return self.run_dir / name
 
-    def _verify(self, out_dir: Path, khash: str, load: Callable[[Path], T]) -> tuple[bool, str, Any, str]:
+    def _verify(self, out_dir: Path, key: Any, khash: str, load: Callable[[Path], T]) -> tuple[bool, str, Any, str]:
         """(ok, reason, loaded value, digest) of an existing output folder."""
         marker = out_dir / MARKER
         if not marker.exists():
@@ -164,7 +191,9 @@ class StageRunner:
         except Exception as exc:  # noqa: BLE001
             return False, f"unreadable marker ({exc})", None, ""
         if recorded_key != khash:
-            return False, "config or inputs changed", None, ""
+            if "key" not in meta:
+                return False, "config or inputs changed (the marker predates recorded keys)", None, ""
+            return False, f"config or inputs changed: {changed_entries(meta['key'], key)}", None, ""
         for rel, h in files.items():
             p = out_dir / rel
             if not p.is_file():
@@ -194,7 +223,7 @@ class StageRunner:
         out_dir = self.stage_dir(name)
         khash = key_hash(key)
         if not self.force and out_dir.exists():
-            ok, reason, value, digest = self._verify(out_dir, khash, load)
+            ok, reason, value, digest = self._verify(out_dir, key, khash, load)
             if ok:
                 log.info("stage %s: complete and verified, skipped", name)
                 return StageResult(name, value, digest, out_dir, skipped=True, seconds=time.perf_counter() - t0)
@@ -216,7 +245,8 @@ class StageRunner:
             value = load(out_dir)
         except Exception as exc:
             raise StageError(f"stage {name}: its fresh outputs in {out_dir} cannot be loaded: {exc}") from exc
-        _atomic_write_text(out_dir / MARKER, json.dumps({"key_hash": khash, "digest": digest, "files": files}, indent=1))
+        marker = {"key_hash": khash, "digest": digest, "files": files, "key": _plain(key)}
+        _atomic_write_text(out_dir / MARKER, json.dumps(marker, indent=1, default=str))
         seconds = time.perf_counter() - t0
         log.info("stage %s: done in %.1f s", name, seconds)
         return StageResult(name, value, digest, out_dir, skipped=False, seconds=seconds)

@@ -32,14 +32,16 @@ if [ ! -x "$VENV/bin/python" ]; then
     fi
 fi
 
-# Editable install with pinned dependencies; skipped when the same pyproject is installed.
+# Editable install with pinned dependencies and the test extra (pytest, ruff); skipped when the
+# same pyproject and extras are installed.
+EXTRAS="test"
 stamp="$VENV/.sgdr-setup-stamp"
-sum=$(sha256sum pyproject.toml | cut -d' ' -f1)
-if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$sum" ] && "$VENV/bin/python" -c "import sgdr, drjit, mitsuba" 2>/dev/null; then
+sum="$(sha256sum pyproject.toml | cut -d' ' -f1) extras=$EXTRAS"
+if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$sum" ] && "$VENV/bin/python" -c "import sgdr, drjit, mitsuba, pytest" 2>/dev/null; then
     echo "setup: already up to date"
 else
     "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --upgrade pip
-    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -e .
+    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -e ".[$EXTRAS]"
     echo "$sum" > "$stamp"
 fi
 "$VENV/bin/python" -c "import sgdr.backend as b; print('setup: ok, libLLVM at', b.check_llvm())"

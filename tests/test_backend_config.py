@@ -38,3 +38,39 @@ def test_presets_compose(preset, n_anchors):
 def test_schema_rejects_unknown_field():
     with pytest.raises(Exception, match="nonexistent"):
         compose(["physics.nonexistent=1"])
+
+
+def _yaml_keys(path):
+    import yaml
+
+    def leaves(d, prefix=""):
+        for k, v in d.items():
+            if isinstance(v, dict):
+                yield from leaves(v, f"{prefix}{k}.")
+            else:
+                yield f"{prefix}{k}"
+
+    return set(leaves(yaml.safe_load(path.read_text())))
+
+
+def test_presets_set_scale_and_methods_set_method_never_both():
+    """conf/config.yaml's rule: a preset changes only how much is computed, a method only what."""
+    from pathlib import Path
+
+    conf = Path(__file__).resolve().parent.parent / "conf"
+    presets = {p.stem: _yaml_keys(p) - {"preset"} for p in (conf / "preset").glob("*.yaml")}
+    methods = {p.stem: _yaml_keys(p) - {"method"} for p in (conf / "method").glob("*.yaml")}
+    assert {"tiny", "small", "paper"} <= presets.keys() and {"spring_gaus", "official"} <= methods.keys()
+    for preset, p_keys in presets.items():
+        for method, m_keys in methods.items():
+            assert not p_keys & m_keys, (preset, method, p_keys & m_keys)
+
+
+def test_default_method_is_the_recommended_one_at_every_preset():
+    for preset in ("tiny", "small", "paper"):
+        cfg = compose([f"preset={preset}"])
+        assert cfg.method == "spring_gaus"
+        assert (cfg.physics.contact, cfg.anchors.binding, cfg.recon.mode) == ("coulomb", "displacement", "full")
+    official = compose(["preset=small", "method=official"])
+    assert (official.physics.contact, official.anchors.binding, official.recon.mode) == ("project", "official", "truncated")
+    assert official.anchors.n_anchors == 512  # the scale stays the preset's

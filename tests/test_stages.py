@@ -139,3 +139,81 @@ def test_checkpoint_of_another_config_is_not_resumed(tmp_path):
         runner.run("s", {"lr": 1}, crash, lambda o: np.load(o / "x.npy"))
     runner.run("s", {"lr": 2}, fresh, lambda o: np.load(o / "x.npy"))
     assert seen == [None]
+
+
+# ---------------------------------------------------------------------------- pipeline keys
+def _changed(value):
+    """Another value of the same type (a stand-in for any edit of a setting)."""
+    if isinstance(value, bool):
+        return not value
+    if isinstance(value, (int, float)):
+        return value + 1
+    if isinstance(value, str):
+        return value + "_other"
+    if isinstance(value, list):
+        return [*value, 1.0]
+    raise TypeError(type(value))
+
+
+def _leaves(d, prefix=""):
+    for k, v in d.items():
+        if isinstance(v, dict):
+            yield from _leaves(v, f"{prefix}{k}.")
+        else:
+            yield f"{prefix}{k}", v
+
+
+def _stage_key_hashes(cfg):
+    from sgdr.recon.pipeline import STAGE_SECTIONS, stage_sections
+    from sgdr.recon.stages import key_hash
+
+    return {stage: key_hash(stage_sections(cfg, stage)) for stage in STAGE_SECTIONS}
+
+
+def test_every_field_of_a_stage_section_is_in_its_key_except_the_listed_ones():
+    """Changing any field of a section a stage reads redoes the stage; the fields listed as
+    changing no output (RECON_NEVER_IN_KEYS) redo nothing; a recon field one stage owns
+    (RECON_STAGE_FIELDS) redoes that stage (its followers see it through their inputs)."""
+    from omegaconf import OmegaConf
+
+    from sgdr.config import compose
+    from sgdr.recon.pipeline import RECON_NEVER_IN_KEYS, RECON_STAGE_FIELDS, STAGE_SECTIONS
+
+    cfg = OmegaConf.to_object(compose(["preset=tiny"]))
+    base = _stage_key_hashes(cfg)
+    owner = {f: stage for stage, fields in RECON_STAGE_FIELDS.items() for f in fields}
+    plain = OmegaConf.to_container(compose(["preset=tiny"]))
+    for section in sorted({s for sections in STAGE_SECTIONS.values() for s in sections}):
+        for name, value in _leaves(plain[section]):
+            top = name.split(".")[0]
+            edited = OmegaConf.to_object(compose(["preset=tiny", f"{section}.{name}={json.dumps(_changed(value))}"]))
+            now = _stage_key_hashes(edited)
+            redone = {stage for stage in base if now[stage] != base[stage]}
+            readers = {stage for stage, sections in STAGE_SECTIONS.items() if section in sections}
+            if section == "recon" and top in RECON_NEVER_IN_KEYS:
+                assert redone == set(), (name, redone)
+            elif section == "recon" and top in owner:
+                assert redone == {owner[top]}, (name, redone)
+            else:
+                assert redone == readers, (f"{section}.{name}", redone, readers)
+
+
+def test_a_changed_key_is_logged_by_name(tmp_path, caplog):
+    s = _Counter()
+    StageRunner(tmp_path).run("a", {"recon": {"iterations": 20, "mode": "full"}, "input": "x"}, s.produce, s.load)
+    with caplog.at_level("WARNING", logger="sgdr.recon.stages"):
+        StageRunner(tmp_path).run("a", {"recon": {"iterations": 30, "mode": "full"}, "input": "x"}, s.produce, s.load)
+    assert s.calls == 2
+    assert "config or inputs changed: recon.iterations: 20 -> 30" in caplog.text
+
+
+def test_a_run_folder_moved_elsewhere_resumes(tmp_path):
+    """Keys hold values and digests, never paths: a copied run folder skips its stages."""
+    import shutil
+
+    s = _Counter()
+    key = {"recon": {"lr": 0.05, "grid": [2.7, 3.0]}, "seed": 0}
+    StageRunner(tmp_path / "here").run("a", key, s.produce, s.load)
+    shutil.copytree(tmp_path / "here", tmp_path / "there")
+    assert StageRunner(tmp_path / "there").run("a", json.loads(json.dumps(key)), s.produce, s.load).skipped
+    assert s.calls == 1

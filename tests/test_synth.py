@@ -185,6 +185,7 @@ def test_generated_alpha_matches_the_projected_particles(tiny_sequence):
             assert np.linalg.norm(centroid - uv.mean(0)) < 0.02 * cam.width  # pixels
 
 
+@pytest.mark.slow
 def test_generate_driver_writes_then_skips_a_complete_sequence(tmp_path):
     import subprocess
     import sys

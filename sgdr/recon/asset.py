@@ -15,14 +15,17 @@ sequence's cameras or an orbit.
 from __future__ import annotations
 
 import json
+import logging
 import math
-from dataclasses import asdict, dataclass, is_dataclass
+from dataclasses import asdict, dataclass, fields, is_dataclass
 from pathlib import Path
 
 import numpy as np
 
 from sgdr.cameras import Camera
 from sgdr.registry import Registry
+
+log = logging.getLogger(__name__)
 
 
 def _plain(x):
@@ -113,8 +116,8 @@ def load_asset(path) -> Asset:
         anchors=anchors,
         rest_centres=rest,
         values=values,
-        physics=PhysicsConfig(**meta["physics"]),
-        anchor_cfg=AnchorConfig(**meta["anchors"]),
+        physics=_known_fields(PhysicsConfig, meta["physics"], meta_file),
+        anchor_cfg=_known_fields(AnchorConfig, meta["anchors"], meta_file),
         ground_point=np.asarray(meta["ground"]["point"], float),
         ground_normal=np.asarray(meta["ground"]["normal"], float),
         fps=float(meta["fps"]),
@@ -123,6 +126,16 @@ def load_asset(path) -> Asset:
         n_substeps=int(meta["n_substeps"]),
         cameras=[Camera.from_dict(c, where=f"{meta_file} cameras[{i}]") for i, c in enumerate(meta["cameras"])],
     )
+
+
+def _known_fields(schema, values: dict, where):
+    """schema(**values) without the settings the schema no longer has (an asset written before
+    a setting was removed, e.g. physics.grad_mode); each dropped one is logged."""
+    known = {f.name for f in fields(schema)}
+    dropped = sorted(set(values) - known)
+    if dropped:
+        log.warning("%s: ignoring settings that no longer exist: %s", where, dropped)
+    return schema(**{k: v for k, v in values.items() if k in known})
 
 
 def orbit_cameras(asset: Asset, n: int) -> list[Camera]:

@@ -58,7 +58,7 @@ PARAM_NAMES = ["log10_k", "kappa", "v0", "friction", "restitution", "zeta0", "gr
 def _setup(law, springs, contact):
     rng = np.random.default_rng(11)
     x_rest = _blob(32, seed=5)
-    cfg = PhysicsConfig(spring_law=law, springs=springs, contact=contact, n_c=3,
+    cfg = PhysicsConfig(spring_law=law, springs=springs, contact=contact, n_c=2,
                         log10_k_init=1.5, kappa_init=-1.0, restitution_init=0.6, zeta0=0.05,
                         # "project": tangential factor per substep; "coulomb": small enough to slide
                         friction_init=0.3 if contact == "project" else 0.05)

@@ -153,6 +153,7 @@ def test_official_variant_matches_the_official_equations(case):
         x, v = sim.frame(x, v, 1 / 30, n_step)
         touched = max(touched, int((x[:, 2] <= GROUND).sum()))
         xs, vs = states[f].numpy()
+        print(f"{case} frame {f}: |Δx| / size {np.abs(xs - x).max() / size:.2g}, |Δv| {np.abs(vs - v).max():.2g}")
         assert np.abs(xs - x).max() <= 2e-5 * size, f"frame {f}: positions differ"
         assert np.abs(vs - v).max() <= 2e-4 * max(1.0, np.abs(v).max()), f"frame {f}: velocities differ"
     assert touched >= 3  # contact is exercised

@@ -44,14 +44,41 @@ def test_every_layout_reads_the_same_cameras_images_and_scene(layout):
             np.testing.assert_array_equal(im, ref.image(v, f))
 
 
+def assert_json_close(a, b, path="$", rtol=1e-9, atol=1e-12):
+    """Same structure, keys and strings exactly; numbers within a tolerance (the fixtures are
+    computed with float64 trigonometry whose last digit differs between CPUs and libms)."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and sorted(a) == sorted(b), f"{path}: keys {sorted(a)} != {sorted(b)}"
+        for k in a:
+            assert_json_close(a[k], b[k], f"{path}.{k}", rtol, atol)
+    elif isinstance(a, list):
+        assert isinstance(b, list) and len(a) == len(b), f"{path}: list lengths differ"
+        for i, (x, y) in enumerate(zip(a, b)):
+            assert_json_close(x, y, f"{path}[{i}]", rtol, atol)
+    elif isinstance(a, bool) or not isinstance(a, (int, float)):
+        assert a == b, f"{path}: {a!r} != {b!r}"
+    else:
+        assert isinstance(b, (int, float)) and not isinstance(b, bool), f"{path}: {b!r} is not a number"
+        assert abs(a - b) <= atol + rtol * abs(b), f"{path}: {a!r} != {b!r}"
+
+
+def test_json_comparison_tolerates_the_last_digit_only():
+    assert_json_close({"K": [[-0.8703882797784892, 1]], "name": "a"}, {"K": [[-0.8703882797784891, 1]], "name": "a"})
+    for other in ({"K": [[-0.8704, 1]], "name": "a"}, {"K": [[-0.8703882797784892, 1]], "name": "b"},
+                  {"K": [[-0.8703882797784892]], "name": "a"}, {"K": [[-0.8703882797784892, 1]]}):
+        with pytest.raises(AssertionError):
+            assert_json_close({"K": [[-0.8703882797784892, 1]], "name": "a"}, other)
+
+
 def test_fixtures_are_reproduced_by_the_documented_command(tmp_path):
     from tests.data.make_fixtures import make
 
     paths = make(tmp_path)
     for name in ("sgdr_seq/sequence.json", "spring_gaus/camera.json", "pac_nerf/all_data.json"):
-        assert json.loads((tmp_path / name).read_text()) == json.loads((DATA / name).read_text())
+        assert_json_close(json.loads((tmp_path / name).read_text()), json.loads((DATA / name).read_text()), name)
+    # 8-bit images: a float difference in the last digit may move one channel by one level.
     fresh = load_sequence(paths["pac_nerf"])
-    np.testing.assert_array_equal(fresh.image(1, 2), load_sequence(DATA / "pac_nerf").image(1, 2))
+    np.testing.assert_allclose(fresh.image(1, 2), load_sequence(DATA / "pac_nerf").image(1, 2), atol=1.01 / 255)
 
 
 def test_sgdr_round_trip_keeps_ground_truth_and_cameras_project_the_ball():

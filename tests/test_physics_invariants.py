@@ -19,6 +19,7 @@ from sgdr.physics import (
     with_masses,
 )
 from sgdr.physics import reference as R
+from tests.physics_variants import CONTACT_MODELS, LAWS
 
 FAR = Ground([0.0, 0.0, -100.0], [0.0, 0.0, 1.0])  # a ground nothing reaches
 
@@ -61,7 +62,7 @@ def test_undamped_hookean_conserves_energy():
     assert np.abs(energies - energies[0]).max() < 0.01 * energies[0]
 
 
-@pytest.mark.parametrize("law", ["official", "paper"])
+@pytest.mark.parametrize("law", LAWS)
 def test_symmetric_springs_conserve_momentum(law):
     rng = np.random.default_rng(1)
     x_rest = rng.uniform(0.3, 0.7, (60, 3))
@@ -108,7 +109,7 @@ def test_dropped_object_falls_as_g_t2_over_2_until_contact():
     assert n_checked >= 6 and min(s.numpy()[0][:, 2].min() for s in states) < 0.2 + 1e-3  # it got there
 
 
-@pytest.mark.parametrize("contact", ["project", "coulomb"])
+@pytest.mark.parametrize("contact", CONTACT_MODELS)
 def test_object_at_rest_on_ground_stays_put(contact):
     """Symmetric springs: after settling under gravity nothing moves or slides. (Directed
     springs drift sideways once sagged, since their internal forces do not cancel.)"""

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from sgdr.physics import Ground, PhysicsConfig, PhysParams, SimState, build_spring_model, rollout
+from tests.physics_variants import ADJOINT_NAMES
 
 UNITS = {"B": 1, "KiB": 2**10, "MiB": 2**20, "GiB": 2**30}
 
@@ -25,7 +26,7 @@ def _llvm_bytes_in_use() -> float:
 BUDGET = 48  # bytes per anchor and substep: x, v, f (36 B) with allocator slack
 
 
-@pytest.mark.parametrize("adjoint", ["recorded", "gather"])
+@pytest.mark.parametrize("adjoint", ADJOINT_NAMES)
 @pytest.mark.parametrize("mode", ["full", "truncated"])
 def test_tape_memory_is_the_substep_states_only(mode, adjoint):
     rng = np.random.default_rng(0)

@@ -51,9 +51,21 @@ def law_paper(dl, inv_l, p_k: float, eps: float):
     return dl * _pow(dr.maximum(dr.abs(dl), eps), p_k)
 
 
+OFFICIAL_STRETCH_DEAD_ZONE = 1.0e-6
+"""Scene units. The official `compute_force` zeroes a spring whose |Δl| is below this (its
+`self.edge`): part of the official model, not a tuning knob."""
+
+
+def _official_dead_zone(dl):
+    """Δl, set to 0 where |Δl| < OFFICIAL_STRETCH_DEAD_ZONE (strict, as the official code)."""
+    return dr.select(dr.abs(dl) < OFFICIAL_STRETCH_DEAD_ZONE, 0.0, dl)
+
+
 @SPRING_LAWS.register("official")
 def law_official(dl, inv_l, p_k: float, eps: float):
-    """Official code: g = Δl (1 + |Δl| / l_ij)^p_k, i.e. Hookean times (1 + |strain|)^p_k."""
+    """Official code: g = Δl (1 + |Δl| / l_ij)^p_k, i.e. Hookean times (1 + |strain|)^p_k, with
+    Δl = 0 inside the dead zone |Δl| < 1e-6."""
+    dl = _official_dead_zone(dl)
     return dl * _pow(1.0 + dr.abs(dl) * inv_l, p_k)
 
 
@@ -71,10 +83,13 @@ def law_paper_slope(dl, inv_l, p_k: float, eps: float):
 
 @SPRING_LAW_SLOPES.register("official")
 def law_official_slope(dl, inv_l, p_k: float, eps: float):
-    """g = Δl q^p_k with q = 1 + |Δl| / l_ij: g' = q^p_k + |Δl| / l_ij p_k q^(p_k - 1)."""
+    """g = Δl q^p_k with q = 1 + |Δl| / l_ij: g' = q^p_k + |Δl| / l_ij p_k q^(p_k - 1); g = g' = 0
+    inside the dead zone (g is constant there)."""
+    dead = dr.abs(dl) < OFFICIAL_STRETCH_DEAD_ZONE
+    dl = _official_dead_zone(dl)
     a = dr.abs(dl)
     q_p, q_p_slope = _pow_and_slope(1.0 + a * inv_l, p_k)
-    return dl * q_p, q_p + a * inv_l * q_p_slope
+    return dl * q_p, dr.select(dead, 0.0, q_p + a * inv_l * q_p_slope)
 
 
 # --------------------------------------------------------------------------------------------
@@ -113,9 +128,10 @@ def stiffness_arithmetic_partials(k_i, k_j):
 
 
 # --------------------------------------------------------------------------------------------
-# Soft vector (Eq. 15): η_j = 1 for j <= n_c, else clamp(2 - exp(softplus(κ))^e_j, 0, 1),
-# j = 1..n_k the rank of the spring (nearest first). Official: e_j = (j - n_c) / (n_k - n_c);
-# paper as printed: e_j = j - n_c.
+# Soft vector (Eq. 15): η = clamp(2 - exp(softplus(κ))^e, 0, 1) where e > 0, else 1, for the
+# spring of 0-based rank r (nearest first). Official (`normalised`): e_r = (r - n_c) / (n_k - n_c),
+# so ranks r <= n_c keep η = 1 (the official code concatenates n_c ones with
+# arange(n_k - n_c) / (n_k - n_c)); paper as printed, with the 1-based j = r + 1: e_j = j - n_c.
 # --------------------------------------------------------------------------------------------
 
 
@@ -126,11 +142,11 @@ def softplus(a):
 
 
 def soft_vector_exponent(rank, n_k: int, n_c: int, normalised: bool):
-    """e_j for 0-based spring ranks `rank` (Float, any width); <= 0 means full weight."""
-    j = rank + 1.0
+    """The exponent e for 0-based spring ranks `rank` (Float or NumPy, any width); <= 0 means
+    full weight. Works on NumPy arrays too (the stability bound and the twin use it)."""
     if normalised:
-        return (j - n_c) / float(max(n_k - n_c, 1))
-    return j - float(n_c)
+        return (rank - float(n_c)) / float(max(n_k - n_c, 1))
+    return rank + 1.0 - float(n_c)
 
 
 def soft_vector_eta(softplus_kappa, exponent):
@@ -155,11 +171,13 @@ CONTACTS = Registry("contact model", "physics.contact", PhysicsInputError)
 
 @CONTACTS.register("project")
 def contact_project(x, v, point, normal, params, dt: float, g_norm, cfg):
-    """Official: an anchor below the plane is projected onto it, its normal velocity zeroed and
-    its tangential velocity multiplied by μ (every substep, so the effective friction depends on
-    n_t; restitution is unused)."""
+    """Official: an anchor on or below the plane (height <= 0, inclusive as the official
+    `apply_bc`) is projected onto it, its normal velocity zeroed and its tangential velocity
+    multiplied by μ (every substep, so the effective friction depends on n_t; restitution is
+    unused). An anchor lying exactly on the plane is touching: float32 rounding puts anchors
+    there often (a projected anchor whose tiny normal step x + dt v rounds back to x)."""
     phi = dr.dot(x - point, normal)  # signed height above the plane
-    below = phi < 0
+    below = phi <= 0
     v_n = dr.dot(v, normal)
     x = dr.select(below, x - phi * normal, x)
     v = dr.select(below, params.friction * (v - v_n * normal), v)
@@ -170,14 +188,14 @@ def contact_project(x, v, point, normal, params, dt: float, g_norm, cfg):
 def contact_coulomb(x, v, point, normal, params, dt: float, g_norm, cfg):
     """Impulse contact with restitution e and Coulomb friction μ, independent of n_t.
 
-    An anchor below the plane is projected onto it. If it approaches (v_n < 0) the normal
+    An anchor on or below the plane is projected onto it. If it approaches (v_n < 0) the normal
     velocity becomes e |v_n| (0 below the resting speed rest_speed_factor |g| dt, so a body at
     rest does not jitter) and the tangential speed drops by μ times the normal impulse
     (1 + e) |v_n|, never below zero: per unit time that is μ times the normal force, whatever
     the substep.
     """
     phi = dr.dot(x - point, normal)
-    below = phi < 0
+    below = phi <= 0
     v_n = dr.dot(v, normal)
     approach = below & (v_n < 0)
     u = -v_n  # approach speed (> 0 when approaching)

@@ -42,12 +42,14 @@ def model_numpy(model) -> dict:
 
 
 def soft_vector(kappa: float, n_k: int, n_c: int, normalised: bool) -> np.ndarray:
-    """η_j, j = 1..n_k (Eq. 15)."""
+    """η for the springs of 0-based rank r = 0..n_k-1 (Eq. 15). Official (`normalised`): n_c
+    ones, then 2 - exp(softplus(κ))^(q / (n_k - n_c)) for q = 0..n_k-n_c-1 (its first soft spring
+    still has η = 1); paper as printed: exponent j - n_c for the 1-based rank j = r + 1."""
     eta = np.ones(n_k)
     base = np.exp(np.log1p(np.exp(kappa)))  # exp(softplus(κ))
-    for j in range(n_c + 1, n_k + 1):
-        e = (j - n_c) / (n_k - n_c) if normalised else float(j - n_c)
-        eta[j - 1] = min(max(2.0 - base**e, 0.0), 1.0)
+    for r in range(n_c, n_k):
+        e = (r - n_c) / (n_k - n_c) if normalised else float(r + 1 - n_c)
+        eta[r] = min(max(2.0 - base**e, 0.0), 1.0)
     return eta
 
 
@@ -64,6 +66,7 @@ def spring_force(m: dict, p: dict, x: np.ndarray, v: np.ndarray, cfg: PhysicsCon
     if cfg.spring_law == "paper":
         g = dl * np.maximum(np.abs(dl), cfg.min_length) ** cfg.p_k
     elif cfg.spring_law == "official":
+        dl = np.where(np.abs(dl) < 1e-6, 0.0, dl)  # the official dead zone
         g = dl * (1.0 + np.abs(dl) / l) ** cfg.p_k
     else:
         raise ValueError(cfg.spring_law)
@@ -87,7 +90,7 @@ def contact(x, v, point, normal, p: dict, dt: float, cfg: PhysicsConfig):
     g_norm = np.linalg.norm(p["gravity"])
     for a in range(x.shape[0]):
         phi = float(np.dot(x[a] - point, normal))
-        if phi >= 0:
+        if phi > 0:  # on the plane (phi == 0) counts as touching
             continue
         x[a] = x[a] - phi * normal
         v_n = float(np.dot(v[a], normal))

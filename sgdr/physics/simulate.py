@@ -196,9 +196,8 @@ def springs_symmetric(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig
 
 
 def soft_vector_numpy(kappa: float, n_k: int, n_c: int, normalised: bool) -> np.ndarray:
-    """η_j for j = 1..n_k as float64 NumPy (Eq. 15), for the stability bound."""
-    j = np.arange(1, n_k + 1, dtype=np.float64)
-    e = (j - n_c) / max(n_k - n_c, 1) if normalised else j - n_c
+    """η for the spring ranks r = 0..n_k-1 as float64 NumPy (Eq. 15), for the stability bound."""
+    e = soft_vector_exponent(np.arange(n_k, dtype=np.float64), n_k, n_c, normalised)
     sp = np.logaddexp(0.0, kappa)
     return np.where(e > 0, np.clip(2.0 - np.exp(sp * e), 0.0, 1.0), 1.0)
 

@@ -72,10 +72,10 @@ RECON_STAGE_FIELDS = {
 def recon_section(cfg, stage: str) -> dict:
     """The `recon` section as stage `stage` sees it for its key: every field except
     `RECON_NEVER_IN_KEYS` and the fields other stages own (`RECON_STAGE_FIELDS`)."""
-    from sgdr.recon.stages import _plain
+    from sgdr.recon.stages import plain
 
     others = {f for name, fields in RECON_STAGE_FIELDS.items() if name != stage for f in fields}
-    return {k: v for k, v in _plain(cfg.recon).items() if k not in others and k not in RECON_NEVER_IN_KEYS}
+    return {k: v for k, v in plain(cfg.recon).items() if k not in others and k not in RECON_NEVER_IN_KEYS}
 
 
 # The config sections each stage reads, whole, in its key (besides seeds and input digests).

@@ -52,11 +52,12 @@ CHECKPOINT_DIR = "checkpoint"
 
 def key_hash(key: Any) -> str:
     """SHA-256 of a JSON-able description of a stage's config and inputs (sorted keys)."""
-    text = json.dumps(_plain(key), sort_keys=True, default=str, separators=(",", ":"))
+    text = json.dumps(plain(key), sort_keys=True, default=str, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def _plain(x: Any) -> Any:
+def plain(x: Any) -> Any:
+    """A JSON-able copy of a key: dataclasses and DictConfigs as dicts, arrays as digests."""
     from dataclasses import asdict, is_dataclass
 
     if is_dataclass(x) and not isinstance(x, type):
@@ -66,9 +67,9 @@ def _plain(x: Any) -> Any:
     if isinstance(x, (DictConfig, ListConfig)):
         return OmegaConf.to_container(x, resolve=True)
     if isinstance(x, Mapping):
-        return {str(k): _plain(v) for k, v in x.items()}
+        return {str(k): plain(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
+        return [plain(v) for v in x]
     if isinstance(x, np.ndarray):
         return hashlib.sha256(np.ascontiguousarray(x).tobytes()).hexdigest() + str(x.shape)
     if isinstance(x, Path):
@@ -88,7 +89,7 @@ def _flatten(x: Any, prefix: str = "") -> dict[str, Any]:
 
 def changed_entries(old: Any, new: Any, limit: int = 6) -> str:
     """The entries of two stage keys that differ, as `name: old -> new`, comma separated."""
-    a, b = _flatten(json.loads(json.dumps(_plain(old), default=str))), _flatten(json.loads(json.dumps(_plain(new), default=str)))
+    a, b = _flatten(json.loads(json.dumps(plain(old), default=str))), _flatten(json.loads(json.dumps(plain(new), default=str)))
     names = sorted(k for k in a.keys() | b.keys() if a.get(k, "<absent>") != b.get(k, "<absent>"))
 
     def show(v) -> str:
@@ -245,7 +246,7 @@ class StageRunner:
             value = load(out_dir)
         except Exception as exc:
             raise StageError(f"stage {name}: its fresh outputs in {out_dir} cannot be loaded: {exc}") from exc
-        marker = {"key_hash": khash, "digest": digest, "files": files, "key": _plain(key)}
+        marker = {"key_hash": khash, "digest": digest, "files": files, "key": plain(key)}
         _atomic_write_text(out_dir / MARKER, json.dumps(marker, indent=1, default=str))
         seconds = time.perf_counter() - t0
         log.info("stage %s: done in %.1f s", name, seconds)

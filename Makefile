@@ -8,7 +8,7 @@ PRESET ?= small
 
 help:
 	@echo "make setup      install libLLVM + sgdr with pinned dependencies (idempotent)"
-	@echo "make test       run the test suite on the tiny preset"
+	@echo "make test       lint (ruff check, ruff format --check) and run the test suite on the tiny preset"
 	@echo "make bench      run benchmarks, one JSON line each (BENCH=sim|render|... for one)"
 	@echo "make data       generate the 7-object benchmark at the small preset into data/"
 	@echo "make demo       generate + reconstruct + predict + evaluate the torus (small preset)"
@@ -19,6 +19,8 @@ setup:
 	bash scripts/setup.sh
 
 test:
+	$(PYTHON) -m ruff check .
+	$(PYTHON) -m ruff format --check .
 	$(PYTHON) -m pytest -q tests
 
 bench:
@@ -32,7 +34,7 @@ data:
 # The default method (conf/method/spring_gaus.yaml) at the small preset; METHOD=official for the
 # official code's method.
 METHOD ?= spring_gaus
-# the run folders' <preset>[_<method>] part (sgdr.recon.pipeline.default_run_name)
+# the run folders' <preset>[_<method>] part (sgdr.pipeline.run.default_run_name)
 RUN_TAG = $(PRESET)$(if $(filter spring_gaus,$(METHOD)),,_$(METHOD))
 demo:
 	$(PYTHON) experiments/reconstruct.py preset=small method=$(METHOD) synth.object=torus

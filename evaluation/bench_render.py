@@ -110,12 +110,12 @@ def _mitsuba(g, cam, backward: bool):
 def _static_fit_small() -> tuple[float, float, int]:
     from sgdr.cameras import Camera
     from sgdr.config import compose
-    from sgdr.gaussians.config import StaticFitConfig
+    from sgdr.evaluate import psnr
     from sgdr.gaussians.model import Gaussians
-    from sgdr.gaussians.static_fit import fit_static
     from sgdr.render.config import RenderConfig
-    from sgdr.metrics import psnr
     from sgdr.render.splat import render
+    from sgdr.static_fit.config import StaticFitConfig
+    from sgdr.static_fit.fit import fit_static
 
     cfg = compose(["preset=small"])
     fit_cfg, rcfg = StaticFitConfig(**cfg.static_fit), RenderConfig(**cfg.render)

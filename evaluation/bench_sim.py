@@ -71,8 +71,13 @@ def _forward(n_anchors: int, n_k: int, reps: int) -> dict:
         kernels.append(sum(k.get("execution_time", 0.0) for k in history) / 1e3)  # ms -> s
     work = n_anchors * n_k * N_SUB
     wall, kernel = statistics.median(walls), statistics.median(kernels)
-    return {"steps_per_s": work / wall, "kernel_steps_per_s": work / kernel, "first_call_s": first,
-            "wall_s": wall, "kernel_s": kernel}
+    return {
+        "steps_per_s": work / wall,
+        "kernel_steps_per_s": work / kernel,
+        "first_call_s": first,
+        "wall_s": wall,
+        "kernel_s": kernel,
+    }
 
 
 def _numpy_twin(n_anchors: int, n_k: int, n_steps: int) -> float:
@@ -103,8 +108,17 @@ def _gradient_ratio(n_anchors: int, n_k: int, n_frames: int, adjoint: str) -> di
         if grad:
             dr.enable_grad(p)
         t0 = time.perf_counter()
-        states = rollout(model, p, SimState.at_rest(model, p.v0), ground, n_frames + 1, 1 / FPS, cfg,
-                         grad_mode="full", n_substeps=N_SUB)
+        states = rollout(
+            model,
+            p,
+            SimState.at_rest(model, p.v0),
+            ground,
+            n_frames + 1,
+            1 / FPS,
+            cfg,
+            grad_mode="full",
+            n_substeps=N_SUB,
+        )
         dr.sync_thread()
         t1 = time.perf_counter()
         if grad:
@@ -134,15 +148,28 @@ def peak_memory_child(n_anchors: int, n_k: int, n_frames: int) -> dict:
     rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     dr.enable_grad(params)
     t0 = time.perf_counter()
-    states = rollout(model, params, SimState.at_rest(model, params.v0), ground, n_frames + 1, 1 / FPS, cfg,
-                     grad_mode="full", n_substeps=N_SUB)
+    states = rollout(
+        model,
+        params,
+        SimState.at_rest(model, params.v0),
+        ground,
+        n_frames + 1,
+        1 / FPS,
+        cfg,
+        grad_mode="full",
+        n_substeps=N_SUB,
+    )
     loss = 0.0
     for s in states[1:]:
         loss = loss + dr.sum(dr.squared_norm(s.x))
     dr.backward(loss)
     g = to_numpy(dr.grad(params.log10_k))  # reading it runs the backward kernels
-    return {"peak_rss_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
-            "rss_before_gib": rss_before, "seconds": time.perf_counter() - t0, "grad_finite": bool(np.isfinite(g).all())}
+    return {
+        "peak_rss_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
+        "rss_before_gib": rss_before,
+        "seconds": time.perf_counter() - t0,
+        "grad_finite": bool(np.isfinite(g).all()),
+    }
 
 
 def _peak_memory(n_anchors: int, n_k: int, n_frames: int) -> dict:
@@ -150,8 +177,13 @@ def _peak_memory(n_anchors: int, n_k: int, n_frames: int) -> dict:
         "import json, evaluation.bench_sim as b; "
         f"print(json.dumps(b.peak_memory_child({n_anchors}, {n_k}, {n_frames})))"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                         cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+    )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 

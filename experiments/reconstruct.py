@@ -26,13 +26,23 @@ import sgdr.config  # noqa: E402
 
 sgdr.config.register()
 
-HEADLINE = ("fit_psnr", "fit_ssim", "fit_cd", "future_cd", "baseline_future_cd", "future_emd", "future_psnr", "future_ssim", "minutes")
+HEADLINE = (
+    "fit_psnr",
+    "fit_ssim",
+    "fit_cd",
+    "future_cd",
+    "baseline_future_cd",
+    "future_emd",
+    "future_psnr",
+    "future_ssim",
+    "minutes",
+)
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     sgdr.backend.init(cfg.backend, cfg.threads or None)
-    from sgdr.recon.pipeline import run_pipeline
+    from sgdr.pipeline.run import run_pipeline
 
     logging.getLogger("sgdr").setLevel(logging.INFO)
     out = run_pipeline(OmegaConf.to_object(cfg), progress=True)

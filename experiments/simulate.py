@@ -30,9 +30,9 @@ sgdr.config.register()
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     sgdr.backend.init(cfg.backend, cfg.threads or None)
-    from sgdr.recon.asset import load_asset, simulate_asset
-    from sgdr.recon.pipeline import default_run_name
-    from sgdr.recon.report import tile, write_video
+    from sgdr.pipeline.asset import load_asset, simulate_asset
+    from sgdr.pipeline.report import tile, write_video
+    from sgdr.pipeline.run import default_run_name
 
     logging.getLogger("sgdr").setLevel(logging.INFO)
     c = OmegaConf.to_object(cfg)

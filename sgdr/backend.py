@@ -36,7 +36,6 @@ _LLVM_GLOBS = (
 )
 
 
-
 class BackendError(RuntimeError):
     """The requested backend cannot be used; the message says what to install or change."""
 
@@ -112,9 +111,7 @@ def init(name: str = "llvm", threads: int | None = None) -> Backend:
     variant = _VARIANTS.get_named(name)
     if _current is not None:
         if _current.name != name:
-            raise BackendError(
-                f"backend already initialised as {_current.name!r}; one process uses one backend"
-            )
+            raise BackendError(f"backend already initialised as {_current.name!r}; one process uses one backend")
         if threads is not None and threads != _current.threads:
             import drjit as dr
 

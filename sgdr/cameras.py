@@ -59,7 +59,7 @@ class Camera:
 
     # ---------------------------------------------------------------- constructors
     @staticmethod
-    def from_w2c(w2c, K, width, height, name="") -> "Camera":
+    def from_w2c(w2c, K, width, height, name="") -> Camera:
         """From a 3x4 or 4x4 world-to-camera matrix in the OpenCV convention."""
         w2c = np.asarray(w2c, dtype=np.float64)
         if w2c.shape not in ((3, 4), (4, 4)):
@@ -67,7 +67,7 @@ class Camera:
         return Camera(K, w2c[:3, :3], w2c[:3, 3], width, height, name)
 
     @staticmethod
-    def from_c2w_opencv(c2w, K, width, height, name="") -> "Camera":
+    def from_c2w_opencv(c2w, K, width, height, name="") -> Camera:
         """From a camera-to-world matrix whose camera axes follow OpenCV."""
         c2w = np.asarray(c2w, dtype=np.float64)
         if c2w.shape not in ((3, 4), (4, 4)):
@@ -77,7 +77,7 @@ class Camera:
         return Camera(K, R, -R @ centre, width, height, name)
 
     @staticmethod
-    def from_c2w_opengl(c2w, K, width, height, name="") -> "Camera":
+    def from_c2w_opengl(c2w, K, width, height, name="") -> Camera:
         """From a Blender/OpenGL camera-to-world matrix (camera looks down -z, y up)."""
         c2w = np.array(c2w, dtype=np.float64)
         if c2w.shape not in ((3, 4), (4, 4)):
@@ -94,7 +94,7 @@ class Camera:
         return np.array([[f, 0.0, 0.5 * width], [0.0, f, 0.5 * height], [0.0, 0.0, 1.0]])
 
     @staticmethod
-    def look_at(eye, target, up, fov_x_deg, width, height, name="") -> "Camera":
+    def look_at(eye, target, up, fov_x_deg, width, height, name="") -> Camera:
         """A camera at `eye` looking at `target`; `up` gives the image's upward direction."""
         eye, target, up = (np.asarray(a, dtype=np.float64) for a in (eye, target, up))
         z = target - eye
@@ -165,7 +165,7 @@ class Camera:
         }
 
     @staticmethod
-    def from_dict(d: dict, where: str = "camera") -> "Camera":
+    def from_dict(d: dict, where: str = "camera") -> Camera:
         for key in ("K", "w2c", "width", "height"):
             if key not in d:
                 raise CameraError(f"{where}: missing field {key!r}")

@@ -10,10 +10,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from sgdr.anchors.config import AnchorConfig
-from sgdr.gaussians.config import StaticFitConfig
 from sgdr.physics.config import PhysicsConfig
-from sgdr.recon.config import ReconConfig
+from sgdr.pipeline.config import ReconConfig
 from sgdr.render.config import RenderConfig
+from sgdr.static_fit.config import StaticFitConfig
+from sgdr.studies.config import OracleConfig
 from sgdr.synth.config import SynthConfig
 from sgdr.tracking.config import TrackingConfig
 
@@ -33,6 +34,7 @@ class Config:
     static_fit: StaticFitConfig = field(default_factory=StaticFitConfig)
     synth: SynthConfig = field(default_factory=SynthConfig)
     recon: ReconConfig = field(default_factory=ReconConfig)
+    oracle: OracleConfig = field(default_factory=OracleConfig)  # experiments/oracle.py (sgdr.studies.oracle)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
 
 

@@ -17,7 +17,7 @@ A registry is a dict (name -> entry), so `in`, iteration and `.values()` work as
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 
 class Registry(dict):

@@ -39,4 +39,6 @@ def all_variants():
 
 def variant_ids() -> list[str]:
     """Readable test ids for `all_variants()`, in the same order."""
-    return ["-".join(p if isinstance(p, str) else ("normalised" if p else "printed") for p in v) for v in all_variants()]
+    return [
+        "-".join(p if isinstance(p, str) else ("normalised" if p else "printed") for p in v) for v in all_variants()
+    ]

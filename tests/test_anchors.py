@@ -5,8 +5,9 @@ import drjit as dr
 import numpy as np
 import pytest
 
-from sgdr.anchors import AnchorInputError, IDWBinding, idw_weights, sample_anchors, voxel_downsample
+from sgdr.anchors import AnchorInputError, sample_anchors, voxel_downsample
 from sgdr.arrays import array3_to_points
+from sgdr.skin import IDWBinding, idw_weights
 
 
 def _cloud(m=3000, seed=0):

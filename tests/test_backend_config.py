@@ -72,5 +72,9 @@ def test_default_method_is_the_recommended_one_at_every_preset():
         assert cfg.method == "spring_gaus"
         assert (cfg.physics.contact, cfg.anchors.binding, cfg.recon.mode) == ("coulomb", "displacement", "full")
     official = compose(["preset=small", "method=official"])
-    assert (official.physics.contact, official.anchors.binding, official.recon.mode) == ("project", "official", "truncated")
+    assert (official.physics.contact, official.anchors.binding, official.recon.mode) == (
+        "project",
+        "official",
+        "truncated",
+    )
     assert official.anchors.n_anchors == 512  # the scale stays the preset's

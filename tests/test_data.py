@@ -64,8 +64,12 @@ def assert_json_close(a, b, path="$", rtol=1e-9, atol=1e-12):
 
 def test_json_comparison_tolerates_the_last_digit_only():
     assert_json_close({"K": [[-0.8703882797784892, 1]], "name": "a"}, {"K": [[-0.8703882797784891, 1]], "name": "a"})
-    for other in ({"K": [[-0.8704, 1]], "name": "a"}, {"K": [[-0.8703882797784892, 1]], "name": "b"},
-                  {"K": [[-0.8703882797784892]], "name": "a"}, {"K": [[-0.8703882797784892, 1]]}):
+    for other in (
+        {"K": [[-0.8704, 1]], "name": "a"},
+        {"K": [[-0.8703882797784892, 1]], "name": "b"},
+        {"K": [[-0.8703882797784892]], "name": "a"},
+        {"K": [[-0.8703882797784892, 1]]},
+    ):
         with pytest.raises(AssertionError):
             assert_json_close({"K": [[-0.8703882797784892, 1]], "name": "a"}, other)
 

@@ -9,10 +9,24 @@ def test_table_has_a_row_per_run_and_marks_missing_ones(tmp_path):
     run = tmp_path / "torus_small_s0"
     run.mkdir()
     metrics = {
-        "object": "torus", "fit_cd": 0.804, "fit_emd": 0.0375, "fit_psnr": 24.936, "fit_ssim": 0.8904,
-        "future_cd": 2.18, "future_emd": 0.0796, "future_psnr": 17.87, "future_ssim": 0.8116,
-        "baseline_future_cd": 2.03, "minutes": 9.36,
-        "identified": {"log10_k_mean": 3.27, "log10_k_std": 0.167, "kappa": 0.06, "friction": 0.84, "restitution": 0.35},
+        "object": "torus",
+        "fit_cd": 0.804,
+        "fit_emd": 0.0375,
+        "fit_psnr": 24.936,
+        "fit_ssim": 0.8904,
+        "future_cd": 2.18,
+        "future_emd": 0.0796,
+        "future_psnr": 17.87,
+        "future_ssim": 0.8116,
+        "baseline_future_cd": 2.03,
+        "minutes": 9.36,
+        "identified": {
+            "log10_k_mean": 3.27,
+            "log10_k_std": 0.167,
+            "kappa": 0.06,
+            "friction": 0.84,
+            "restitution": 0.35,
+        },
     }
     (run / "metrics.json").write_text(json.dumps(metrics))
     lines = table([run, tmp_path / "cross_small_s0"]).splitlines()

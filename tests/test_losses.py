@@ -7,7 +7,7 @@ from scipy.ndimage import gaussian_filter
 from skimage.metrics import structural_similarity
 
 from sgdr.backend import ad
-from sgdr.render.losses import LossError, dssim, image_loss, l1, mask_loss, ssim
+from sgdr.loss import LossError, dssim, image_loss, l1, mask_loss, ssim
 
 
 def _skimage_ssim(a, b):
@@ -111,7 +111,7 @@ def test_mismatched_image_sizes_raise(rng):
 def test_ssim_custom_adjoint_matches_recorded_ad(rng, border):
     """The hand-written SSIM adjoint equals Dr.Jit's recorded AD of the same map, for
     random cotangents, w.r.t. both images."""
-    from sgdr.render.losses import ssim_map
+    from sgdr.loss import ssim_map
 
     a, b = _images(rng, 23, 29, 3)
     t = ad()

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from skimage.metrics import peak_signal_noise_ratio
 
-from sgdr.metrics import chamfer_distance, earth_movers_distance, earth_movers_distances, psnr, ssim, subsample
+from sgdr.evaluate import chamfer_distance, earth_movers_distance, earth_movers_distances, psnr, ssim, subsample
 
 
 def _grid(n: int, h: float) -> np.ndarray:

@@ -1,6 +1,6 @@
 """MLS-MPM physics checks on tiny grids (24³): conservation, free fall, contact, plasticity."""
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import pytest
@@ -25,7 +25,7 @@ def cube(side=0.2, centre=(0.5, 0.5, 0.5)):
     return x, s**3
 
 
-@lru_cache(maxsize=None)
+@cache
 def drop(E=2e5, collider="slip", v0=(0.0, 0.0, -1.0), yield_stress=0.0, drag=0.0, n_frames=12,
          ground_z=0.25, substeps=0):  # fmt: skip
     """Drop a 0.2-wide cube (centre at 0.5) on a plane at ground_z; returns (x0, frames, model)."""

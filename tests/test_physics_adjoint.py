@@ -18,19 +18,39 @@ N, N_K, N_FRAMES, N_SUB = 24, 8, 3, 6
 def _gradients(adjoint: str, law, springs, stiffness, contact, normalised, mode):
     rng = np.random.default_rng(3)
     x_rest = rng.uniform(0.3, 0.7, (N, 3))
-    cfg = PhysicsConfig(spring_law=law, springs=springs, symmetric_stiffness=stiffness, contact=contact,
-                        soft_vector_normalised=normalised,
-                        n_c=3, log10_k_init=1.5, kappa_init=-1.0, restitution_init=0.6, zeta0=0.05,
-                        friction_init=0.3 if contact == "project" else 0.05, adjoint=adjoint)
+    cfg = PhysicsConfig(
+        spring_law=law,
+        springs=springs,
+        symmetric_stiffness=stiffness,
+        contact=contact,
+        soft_vector_normalised=normalised,
+        n_c=3,
+        log10_k_init=1.5,
+        kappa_init=-1.0,
+        restitution_init=0.6,
+        zeta0=0.05,
+        friction_init=0.3 if contact == "project" else 0.05,
+        adjoint=adjoint,
+    )
     model = build_spring_model(x_rest, N_K, cfg)
     params = PhysParams.init(model, cfg, v0=(0.5, 0.2, -2.5))
     params.log10_k = type(params.log10_k)(rng.uniform(1.3, 1.7, N).astype(np.float32))
     dr.enable_grad(params)
-    state0 = SimState.from_numpy(x_rest + rng.normal(0.0, 0.01, x_rest.shape),
-                                 np.array([0.5, 0.2, -2.5]) + rng.normal(0.0, 0.3, x_rest.shape))
+    state0 = SimState.from_numpy(
+        x_rest + rng.normal(0.0, 0.01, x_rest.shape), np.array([0.5, 0.2, -2.5]) + rng.normal(0.0, 0.3, x_rest.shape)
+    )
     dr.enable_grad(state0.x, state0.v)
-    states = rollout(model, params, state0, Ground([0.0, 0.0, 0.28], [0.0, 0.05, 1.0]), N_FRAMES, 1 / 30, cfg,
-                     grad_mode=mode, n_substeps=N_SUB)
+    states = rollout(
+        model,
+        params,
+        state0,
+        Ground([0.0, 0.0, 0.28], [0.0, 0.05, 1.0]),
+        N_FRAMES,
+        1 / 30,
+        cfg,
+        grad_mode=mode,
+        n_substeps=N_SUB,
+    )
     t = type(params.v0)
     loss = 0.0
     for s in states[1:]:  # random cotangents on x and v of every frame

@@ -114,12 +114,19 @@ def test_object_at_rest_on_ground_stays_put(contact):
     """Symmetric springs: after settling under gravity nothing moves or slides. (Directed
     springs drift sideways once sagged, since their internal forces do not cancel.)"""
     x_rest = _lattice()
-    cfg = PhysicsConfig(springs="symmetric", contact=contact, zeta0=1.0, n_c=8, restitution_init=0.5,
-                        friction_init=0.9 if contact == "project" else 0.5)
+    cfg = PhysicsConfig(
+        springs="symmetric",
+        contact=contact,
+        zeta0=1.0,
+        n_c=8,
+        restitution_init=0.5,
+        friction_init=0.9 if contact == "project" else 0.5,
+    )
     model = build_spring_model(x_rest, 16, cfg)
     params = PhysParams.init(model, cfg)
-    states = rollout(model, params, SimState.at_rest(model, params.v0), Ground([0, 0, 0], [0, 0, 1]), 31, 1 / 30, cfg,
-                     n_substeps=40)
+    states = rollout(
+        model, params, SimState.at_rest(model, params.v0), Ground([0, 0, 0], [0, 0, 1]), 31, 1 / 30, cfg, n_substeps=40
+    )
     xs = [s.numpy()[0] for s in states]
     com = np.array([x.mean(0) for x in xs])
     assert np.abs(com[:, :2] - com[0, :2]).max() < 1e-4  # no sideways drift
@@ -148,8 +155,16 @@ def test_stiffer_half_of_a_bar_strains_less():
     def strains(log10_k):
         params = PhysParams.init(model, cfg, gravity=(0.0, 0.0, -2.0))
         params.log10_k = type(params.log10_k)(log10_k.astype(np.float32))
-        x = rollout(model, params, SimState.at_rest(model, params.v0), Ground([0, 0, 0], [0, 0, 1]), 20, 1 / 30, cfg,
-                    n_substeps=120)[-1].numpy()[0]
+        x = rollout(
+            model,
+            params,
+            SimState.at_rest(model, params.v0),
+            Ground([0, 0, 0], [0, 0, 1]),
+            20,
+            1 / 30,
+            cfg,
+            n_substeps=120,
+        )[-1].numpy()[0]
         low = 1 - (layer(x, mid) - layer(x, 0.0)) / mid
         high = 1 - (layer(x, z.max()) - layer(x, mid)) / (z.max() - mid)
         return low, high

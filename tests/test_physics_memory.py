@@ -42,8 +42,17 @@ def test_tape_memory_is_the_substep_states_only(mode, adjoint):
             dr.enable_grad(params)
             gc.collect()
             before = _llvm_bytes_in_use()
-            states = rollout(model, params, SimState.at_rest(model, params.v0), ground, n_frames + 1, 1 / 30, cfg,
-                             grad_mode=mode, n_substeps=n_sub)
+            states = rollout(
+                model,
+                params,
+                SimState.at_rest(model, params.v0),
+                ground,
+                n_frames + 1,
+                1 / 30,
+                cfg,
+                grad_mode=mode,
+                n_substeps=n_sub,
+            )
             grown[n_k, n_sub] = _llvm_bytes_in_use() - before
             loss = 0.0
             for s in states[1:]:

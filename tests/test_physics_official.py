@@ -97,7 +97,10 @@ def scene(case: str):
         x = rng.uniform(0.3, 0.5, (N, 3)).astype(F32)
         v = np.tile(F32([0.4, -0.2, -2.5]), (N, 1))
         return x, x + rng.normal(0, 0.004, x.shape).astype(F32), v, -9.8
-    ring = np.stack([np.cos(np.arange(N_K) * 2.4), np.sin(np.arange(N_K) * 2.4)], 1) * np.linspace(0.05, 0.09, N_K)[:, None]
+    ring = (
+        np.stack([np.cos(np.arange(N_K) * 2.4), np.sin(np.arange(N_K) * 2.4)], 1)
+        * np.linspace(0.05, 0.09, N_K)[:, None]
+    )
     flat = np.concatenate([[[0.4, 0.4]], 0.4 + ring]).astype(F32)
     x_flat = np.concatenate([flat, np.full((N_K + 1, 1), GROUND, F32)], axis=1)
     x_up = rng.uniform(0.3, 0.5, (N - N_K - 1, 3)).astype(F32)
@@ -112,9 +115,17 @@ def scene(case: str):
 
 def run_sgdr(case, log10_k, kappa, n_frames, n_step, dt_frame=1 / 30):
     x_rest, x0, v0, g = scene(case)
-    cfg = PhysicsConfig(spring_law="official", springs="directed", contact="project",
-                        soft_vector_normalised=True, n_c=N_C, p_k=P_K, zeta0=0.1, friction_init=0.6,
-                        retry_on_nan=False)
+    cfg = PhysicsConfig(
+        spring_law="official",
+        springs="directed",
+        contact="project",
+        soft_vector_normalised=True,
+        n_c=N_C,
+        p_k=P_K,
+        zeta0=0.1,
+        friction_init=0.6,
+        retry_on_nan=False,
+    )
     model = build_spring_model(x_rest.astype(np.float64), N_K, cfg)
     params = PhysParams.init(model, cfg, v0=(0, 0, 0), gravity=(0, 0, g))
     params.log10_k = type(params.log10_k)(log10_k.astype(F32))
@@ -126,8 +137,9 @@ def run_sgdr(case, log10_k, kappa, n_frames, n_step, dt_frame=1 / 30):
 
 def _official(case, log10_k, kappa, dtype=F32):
     x_rest, x0, v0, g = scene(case)
-    sim = OfficialSpringMass(x_rest.astype(dtype), N_K, N_C, log10_k.astype(dtype), kappa, 0.1, 1.0, g, GROUND,
-                             0.6, P_K, dtype)
+    sim = OfficialSpringMass(
+        x_rest.astype(dtype), N_K, N_C, log10_k.astype(dtype), kappa, 0.1, 1.0, g, GROUND, 0.6, P_K, dtype
+    )
     return sim, x0.astype(dtype), v0.astype(dtype)
 
 
@@ -145,8 +157,9 @@ def test_official_variant_matches_the_official_equations(case):
     np.testing.assert_array_equal(j, sim.knn_index)
     assert (official_soft_vector(kappa, N_K, N_C, F32) < 1).sum() == N_K - N_C - 1  # the soft part is engaged
 
-    states = rollout(model, params, SimState.from_numpy(x0, v0), ground, n_frames, 1 / 30, cfg,
-                     grad_mode="full", n_substeps=n_step)
+    states = rollout(
+        model, params, SimState.from_numpy(x0, v0), ground, n_frames, 1 / 30, cfg, grad_mode="full", n_substeps=n_step
+    )
     size = float(np.ptp(x0, axis=0).max())
     touched = 0
     for f in range(1, n_frames):
@@ -169,8 +182,9 @@ def test_official_variant_gradient_matches_finite_differences_of_the_official_eq
     model, params, cfg, ground, x0, v0 = run_sgdr("drop", log10_k, kappa, 2, n_step)
     w = np.random.default_rng(9).normal(size=(N, 3))
     dr.enable_grad(params.log10_k)
-    states = rollout(model, params, SimState.from_numpy(x0, v0), ground, 2, 1 / 30, cfg, grad_mode="full",
-                     n_substeps=n_step)
+    states = rollout(
+        model, params, SimState.from_numpy(x0, v0), ground, 2, 1 / 30, cfg, grad_mode="full", n_substeps=n_step
+    )
     x = states[1].x
     t = type(params.log10_k)
     loss = dr.sum(x[0] * t(w[:, 0]) + x[1] * t(w[:, 1]) + x[2] * t(w[:, 2]))

@@ -21,8 +21,16 @@ def test_rollout_matches_numpy_twin(law, springs, stiffness, contact, normalised
     rng = np.random.default_rng(7)
     x_rest = _blob()
     cfg = PhysicsConfig(
-        spring_law=law, springs=springs, symmetric_stiffness=stiffness, contact=contact,
-        soft_vector_normalised=normalised, n_c=4, log10_k_init=1.5, kappa_init=-1.0, friction_init=0.5, restitution_init=0.5,
+        spring_law=law,
+        springs=springs,
+        symmetric_stiffness=stiffness,
+        contact=contact,
+        soft_vector_normalised=normalised,
+        n_c=4,
+        log10_k_init=1.5,
+        kappa_init=-1.0,
+        friction_init=0.5,
+        restitution_init=0.5,
     )
     model = build_spring_model(x_rest, 12, cfg)
     params = PhysParams.init(model, cfg, v0=(0.3, 0.1, -2.0), gravity=(0.0, -1.0, -9.8))
@@ -31,13 +39,31 @@ def test_rollout_matches_numpy_twin(law, springs, stiffness, contact, normalised
     v0 = np.tile([0.3, 0.1, -2.0], (40, 1)) + rng.normal(0.0, 0.1, x_rest.shape)
     ground = Ground([0.0, 0.0, 0.28], [0.1, 0.0, 1.0])
     states = rollout(model, params, SimState.from_numpy(x0, v0), ground, 3, 1 / 30, cfg, n_substeps=100)
-    ref = R.rollout(R.model_numpy(model), R.params_numpy(params), ground, 3, 1 / 30, 100, cfg,
-                    x0=states[0].numpy()[0], v0=states[0].numpy()[1])
+    ref = R.rollout(
+        R.model_numpy(model),
+        R.params_numpy(params),
+        ground,
+        3,
+        1 / 30,
+        100,
+        cfg,
+        x0=states[0].numpy()[0],
+        v0=states[0].numpy()[1],
+    )
     x, v = states[-1].numpy()
     x_ref, v_ref = ref[-1]
     # the scene really exercises contact: without the ground the result is far from this one
-    free = R.rollout(R.model_numpy(model), R.params_numpy(params), Ground([0, 0, -10.0], [0, 0, 1]), 3,
-                     1 / 30, 100, cfg, x0=states[0].numpy()[0], v0=states[0].numpy()[1])
+    free = R.rollout(
+        R.model_numpy(model),
+        R.params_numpy(params),
+        Ground([0, 0, -10.0], [0, 0, 1]),
+        3,
+        1 / 30,
+        100,
+        cfg,
+        x0=states[0].numpy()[0],
+        v0=states[0].numpy()[1],
+    )
     assert np.abs(free[-1][0] - x_ref).max() > 1e-2
     assert np.abs(x - x_ref).max() <= 1e-5 * np.abs(x_ref).max()
     assert np.abs(v - v_ref).max() <= 1e-5 * np.abs(v_ref).max()
@@ -53,18 +79,32 @@ PARAM_NAMES = ["log10_k", "kappa", "v0", "friction", "restitution", "zeta0", "gr
 def _setup(law, springs, stiffness, contact):
     rng = np.random.default_rng(11)
     x_rest = _blob(32, seed=5)
-    cfg = PhysicsConfig(spring_law=law, springs=springs, symmetric_stiffness=stiffness, contact=contact, n_c=2,
-                        log10_k_init=1.5, kappa_init=-1.0, restitution_init=0.6, zeta0=0.05,
-                        # "project": tangential factor per substep; "coulomb": small enough to slide
-                        friction_init=0.3 if contact == "project" else 0.05)
+    cfg = PhysicsConfig(
+        spring_law=law,
+        springs=springs,
+        symmetric_stiffness=stiffness,
+        contact=contact,
+        n_c=2,
+        log10_k_init=1.5,
+        kappa_init=-1.0,
+        restitution_init=0.6,
+        zeta0=0.05,
+        # "project": tangential factor per substep; "coulomb": small enough to slide
+        friction_init=0.3 if contact == "project" else 0.05,
+    )
     model = build_spring_model(x_rest, 8, cfg)
     params = PhysParams.init(model, cfg, v0=(0.5, 0.2, -2.5), gravity=(0.0, 0.0, -9.8))
     params.log10_k = type(params.log10_k)(rng.uniform(1.3, 1.7, 32).astype(np.float32))
     ground = Ground([0.0, 0.0, 0.28], [0.0, 0.05, 1.0])
     weights = [rng.normal(size=(32, 3)) for _ in range(N_FRAMES)]  # loss = Σ_f Σ_i w_fi · x_i(f)
     directions = {
-        "log10_k": rng.normal(size=32), "v0": rng.normal(size=3), "gravity": rng.normal(size=3),
-        "kappa": 1.0, "friction": 1.0, "restitution": 1.0, "zeta0": 1.0,
+        "log10_k": rng.normal(size=32),
+        "v0": rng.normal(size=3),
+        "gravity": rng.normal(size=3),
+        "kappa": 1.0,
+        "friction": 1.0,
+        "restitution": 1.0,
+        "zeta0": 1.0,
     }
     return cfg, model, params, ground, weights, directions
 
@@ -77,8 +117,11 @@ def _perturbed(p: dict, name: str, h: float, direction) -> dict:
 
 def _twin_fd(m, p, ground, weights, cfg, name, direction, mode, h=1e-6):
     """Directional derivative of the loss by central differences of the twin (float64)."""
+
     def loss_full(q):
-        return sum(float(np.sum(w * s[0])) for w, s in zip(weights[1:], R.rollout(m, q, ground, N_FRAMES, DT, N_SUB, cfg)[1:]))
+        return sum(
+            float(np.sum(w * s[0])) for w, s in zip(weights[1:], R.rollout(m, q, ground, N_FRAMES, DT, N_SUB, cfg)[1:])
+        )
 
     if mode == "full":
         return (loss_full(_perturbed(p, name, h, direction)) - loss_full(_perturbed(p, name, -h, direction))) / (2 * h)
@@ -99,8 +142,9 @@ def _twin_fd(m, p, ground, weights, cfg, name, direction, mode, h=1e-6):
 
 def _drjit_grads(model, params, ground, weights, cfg, mode):
     dr.enable_grad(params)
-    states = rollout(model, params, SimState.at_rest(model, params.v0), ground, N_FRAMES, DT, cfg,
-                     grad_mode=mode, n_substeps=N_SUB)
+    states = rollout(
+        model, params, SimState.at_rest(model, params.v0), ground, N_FRAMES, DT, cfg, grad_mode=mode, n_substeps=N_SUB
+    )
     t = type(params.v0)
     loss = 0.0
     for w, s in zip(weights[1:], states[1:]):
@@ -109,8 +153,11 @@ def _drjit_grads(model, params, ground, weights, cfg, mode):
     out = {}
     for name in PARAM_NAMES:
         g = dr.grad(getattr(params, name))
-        out[name] = np.stack([np.asarray(g[c].numpy(), np.float64) for c in range(3)], 1)[0] if name in ("v0", "gravity") \
+        out[name] = (
+            np.stack([np.asarray(g[c].numpy(), np.float64) for c in range(3)], 1)[0]
+            if name in ("v0", "gravity")
             else np.asarray(g.numpy(), np.float64)
+        )
     return out
 
 
@@ -156,6 +203,8 @@ def test_soft_vector_and_its_kappa_gradient(kappa, normalised):
     assert interior.sum() >= 1
     dr.backward(dr.sum(dr.select(t.Bool(interior), eta, 0.0)))
     h = 1e-6
-    fd = (R.soft_vector(kappa + h, n_k, n_c, normalised)[interior].sum()
-          - R.soft_vector(kappa - h, n_k, n_c, normalised)[interior].sum()) / (2 * h)
+    fd = (
+        R.soft_vector(kappa + h, n_k, n_c, normalised)[interior].sum()
+        - R.soft_vector(kappa - h, n_k, n_c, normalised)[interior].sum()
+    ) / (2 * h)
     assert fd < 0 and abs(dr.grad(k).numpy()[0] - fd) <= 1e-4 * abs(fd) + 1e-6

@@ -13,7 +13,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from sgdr.config import compose
-from sgdr.recon.pipeline import STAGES, run_pipeline
+from sgdr.pipeline.run import STAGES, run_pipeline
 
 pytestmark = pytest.mark.slow  # the whole pipeline, and the drivers as subprocesses
 
@@ -55,7 +55,14 @@ def test_run_folder_holds_the_record(tiny_run):
     assert set(metrics["stage_seconds"]) == {"sequence", *STAGES}
     assert 0 < sum(metrics["stage_seconds"].values()) <= 60 * metrics["minutes"]
     assert (d / "config.yaml").exists()
-    for name in ("side_by_side.mp4", "future.mp4", "losses.png", "stiffness.png", "ply/centres_000.ply", "ply/anchors_000.ply"):
+    for name in (
+        "side_by_side.mp4",
+        "future.mp4",
+        "losses.png",
+        "stiffness.png",
+        "ply/centres_000.ply",
+        "ply/anchors_000.ply",
+    ):
         assert (d / "report" / name).stat().st_size > 0, name
     assert (d / "asset" / "asset.json").exists()
 
@@ -75,13 +82,15 @@ def test_rerun_skips_and_corruption_is_redone(tiny_run):
 
 
 def test_simulate_new_conditions(tiny_run):
-    from sgdr.recon.asset import load_asset, simulate_asset
-    from sgdr.recon.config import SimulateConfig
+    from sgdr.pipeline.asset import load_asset, simulate_asset
+    from sgdr.pipeline.config import SimulateConfig
 
     overrides, cfg, out = tiny_run
     asset = load_asset(out.run_dir / "asset")
     # no gravity, no throw: the springs are at rest, so nothing moves
-    still, cams = simulate_asset(asset, SimulateConfig(gravity=[0, 0, 0], v0=[0, 0, 0], n_frames=4, cameras="orbit"), cfg.render)
+    still, cams = simulate_asset(
+        asset, SimulateConfig(gravity=[0, 0, 0], v0=[0, 0, 0], n_frames=4, cameras="orbit"), cfg.render
+    )
     assert len(cams) == 4 and still.images.shape[:2] == (4, 1)
     assert np.abs(still.centres - still.centres[0]).max() < 1e-4
     # the same drop onto a ground 0.05 lower ends 0.05 lower, resting on its ground
@@ -104,21 +113,33 @@ def test_drivers_run_on_the_tiny_preset(tiny_run):
     root = Path(__file__).resolve().parent.parent
     # Hydra's own run folder (logs, .hydra/) goes to the test's temp dir, not the repo
     common = [*overrides, f"hydra.run.dir={cfg.recon.output_dir}/hydra"]
-    rec = subprocess.run([sys.executable, "experiments/reconstruct.py", *common], cwd=root, capture_output=True, text=True)
+    rec = subprocess.run(
+        [sys.executable, "experiments/reconstruct.py", *common], cwd=root, capture_output=True, text=True
+    )
     assert rec.returncode == 0, rec.stderr[-2000:]
     last = json.loads(rec.stdout.strip().splitlines()[-1])
     assert last["demo"] == "torus" and last["future_cd"] == pytest.approx(out.metrics["future_cd"], rel=1e-3)
     sim = subprocess.run(
-        [sys.executable, "experiments/simulate.py", *common, "recon.simulate.stiffness_scale=0.5", "recon.simulate.n_frames=3"],
-        cwd=root, capture_output=True, text=True,
+        [
+            sys.executable,
+            "experiments/simulate.py",
+            *common,
+            "recon.simulate.stiffness_scale=0.5",
+            "recon.simulate.n_frames=3",
+        ],
+        cwd=root,
+        capture_output=True,
+        text=True,
     )
     assert sim.returncode == 0, sim.stderr[-2000:]
     target = Path(json.loads(sim.stdout.strip().splitlines()[-1])["simulate"])
     assert (target / "video.mp4").stat().st_size > 0 and (target / "trajectory.npz").exists()
     # the identification upper bound: the model fitted to the generator's particle tracks
     orc = subprocess.run(
-        [sys.executable, "experiments/oracle.py", *common, "recon.oracle.iterations=4"],
-        cwd=root, capture_output=True, text=True,
+        [sys.executable, "experiments/oracle.py", *common, "oracle.iterations=4"],
+        cwd=root,
+        capture_output=True,
+        text=True,
     )
     assert orc.returncode == 0, orc.stderr[-2000:]
     summary = json.loads(orc.stdout.strip().splitlines()[-1])
@@ -127,7 +148,7 @@ def test_drivers_run_on_the_tiny_preset(tiny_run):
     oracle_dir = Path(cfg.recon.output_dir) / "torus_tiny_s0_oracle"
     assert (oracle_dir / "oracle.png").stat().st_size > 0
     record = json.loads((oracle_dir / "oracle.json").read_text())
-    assert [row["offset"] for row in record["k_offset_scan"]] == cfg.recon.oracle.k_offsets
-    assert set(record["ensemble"]["offsets"]) <= set(cfg.recon.oracle.k_offsets)
+    assert [row["offset"] for row in record["k_offset_scan"]] == cfg.oracle.k_offsets
+    assert set(record["ensemble"]["offsets"]) <= set(cfg.oracle.k_offsets)
     with np.load(oracle_dir / "tracks.npz") as saved:
         assert saved["simulated"].shape == saved["tracks"].shape and saved["tracks"].shape[2] == 3

@@ -8,20 +8,20 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from sgdr.anchors import IDWBinding
 from sgdr.anchors.config import AnchorConfig
 from sgdr.arrays import points_to_array3
 from sgdr.cameras import Camera
 from sgdr.gaussians.model import Gaussians
+from sgdr.identify.appearance import refine_appearance
+from sgdr.identify.common import frame_targets, posed, render_rgb_numpy, to_tensor
+from sgdr.identify.dynamics import fit_dynamics, substeps_at
+from sgdr.identify.velocity import fit_initial_velocity
 from sgdr.physics import Ground, SimState, build_spring_model, rollout
 from sgdr.physics.config import PhysicsConfig
-from sgdr.recon.common import frame_targets, posed, render_rgb_numpy, to_tensor
-from sgdr.recon.config import ReconConfig
-from sgdr.recon.dynamics import fit_dynamics, substeps_at
-from sgdr.recon.predict import physical_params
-from sgdr.recon.refine import refine_appearance
-from sgdr.recon.velocity import fit_initial_velocity
+from sgdr.pipeline.config import ReconConfig
+from sgdr.pipeline.predict import physical_params
 from sgdr.render.config import RenderConfig
+from sgdr.skin import IDWBinding
 
 FPS = 24.0
 RES = 32
@@ -50,7 +50,9 @@ def scene():
     model = build_spring_model(anchors, acfg.n_k, pcfg)
     binding = IDWBinding.build(centres, anchors, acfg.n_b, acfg.p_b, acfg.binding)
     cams = [
-        Camera.look_at(np.array([0.5, 0.5, 0.2]) + 0.7 * np.array(d), [0.5, 0.5, 0.15], [0, 0, 1], 50.0, RES, RES, f"c{i}")
+        Camera.look_at(
+            np.array([0.5, 0.5, 0.2]) + 0.7 * np.array(d), [0.5, 0.5, 0.15], [0, 0, 1], 50.0, RES, RES, f"c{i}"
+        )
         for i, d in enumerate([(1, 0, 0.3), (0, 1, 0.3), (-0.7, -0.7, 0.5)])
     ]
     rcfg = RenderConfig()
@@ -59,11 +61,20 @@ def scene():
     v0 = np.array([0.3, 0.0, -1.5])
     params = physical_params(model, pcfg, {**TRUE, "v0": v0, "gravity": (0, 0, -9.8)})
     states = rollout(model, params, SimState.at_rest(model, tuple(v0)), ground, 7, 1 / FPS, pcfg, n_substeps=40)
-    images = [
-        [render_rgb_numpy(posed(bound, binding.apply(s.x)), c, rcfg) for c in cams] for s in states
-    ]
-    return dict(g=g, bound=bound, model=model, binding=binding, cams=cams, rcfg=rcfg, pcfg=pcfg,
-                ground=ground, v0=v0, seq=_Seq(images, cams), anchors=anchors)
+    images = [[render_rgb_numpy(posed(bound, binding.apply(s.x)), c, rcfg) for c in cams] for s in states]
+    return dict(
+        g=g,
+        bound=bound,
+        model=model,
+        binding=binding,
+        cams=cams,
+        rcfg=rcfg,
+        pcfg=pcfg,
+        ground=ground,
+        v0=v0,
+        seq=_Seq(images, cams),
+        anchors=anchors,
+    )
 
 
 def test_substep_growth_spans_the_passes():
@@ -84,7 +95,11 @@ def test_truncated_mode_doubles_the_substeps_of_an_unstable_frame_and_keeps_them
     cfg = ReconConfig(mode="truncated", iterations=2, substep_growth=[1.0], lr_log10_k=1e-4, lr_friction=1e-4)
     args = (s["model"], s["binding"], s["bound"], s["v0"], np.array([0, 0, -9.8]), s["ground"], targets, s["cams"], FPS)
     res = fit_dynamics(*args, pcfg, cfg, s["rcfg"], seed=0)
-    assert res.n_substeps >= need and res.n_substeps % n_sub == 0 and (res.n_substeps // n_sub) & (res.n_substeps // n_sub - 1) == 0
+    assert (
+        res.n_substeps >= need
+        and res.n_substeps % n_sub == 0
+        and (res.n_substeps // n_sub) & (res.n_substeps // n_sub - 1) == 0
+    )
     with pytest.raises(SimulationUnstable, match=r"raise physics.n_substeps"):
         fit_dynamics(*args, replace(pcfg, retry_on_nan=False), cfg, s["rcfg"], seed=0)
 
@@ -93,25 +108,54 @@ def test_truncated_mode_doubles_the_substeps_of_an_unstable_frame_and_keeps_them
 def test_dynamics_lowers_the_loss_and_moves_toward_the_truth(scene, mode, iterations, lr):
     s = scene
     pcfg = replace(s["pcfg"], log10_k_init=2.2, friction_init=0.9)
-    cfg = ReconConfig(mode=mode, iterations=iterations, substep_growth=[1.0], lr_log10_k=lr, lr_friction=0.05, cameras_per_frame=2)
+    cfg = ReconConfig(
+        mode=mode, iterations=iterations, substep_growth=[1.0], lr_log10_k=lr, lr_friction=0.05, cameras_per_frame=2
+    )
     targets = [frame_targets(s["seq"], f) for f in range(7)]
-    res = fit_dynamics(s["model"], s["binding"], s["bound"], s["v0"], np.array([0, 0, -9.8]), s["ground"], targets, s["cams"], FPS, pcfg, cfg, s["rcfg"], seed=0)
+    res = fit_dynamics(
+        s["model"],
+        s["binding"],
+        s["bound"],
+        s["v0"],
+        np.array([0, 0, -9.8]),
+        s["ground"],
+        targets,
+        s["cams"],
+        FPS,
+        pcfg,
+        cfg,
+        s["rcfg"],
+        seed=0,
+    )
     assert res.eval_loss_final < 0.8 * res.eval_loss_initial, (res.eval_loss_initial, res.eval_loss_final)
     assert abs(res.log10_k.mean() - TRUE["log10_k"]) < abs(2.2 - TRUE["log10_k"]) - 0.2
     assert res.log10_k.shape == (48,) and len(res.pass_losses) == iterations
 
 
 def test_dynamics_checkpoint_resumes_to_the_same_result(scene, tmp_path):
-    from sgdr.recon.stages import Checkpoint
+    from sgdr.pipeline.stages import Checkpoint
 
     s = scene
     pcfg = replace(s["pcfg"], log10_k_init=2.2)
     targets = [frame_targets(s["seq"], f) for f in range(4)]
-    args = (s["model"], s["binding"], s["bound"], s["v0"], np.array([0, 0, -9.8]), s["ground"], targets, s["cams"], FPS, pcfg)
+    args = (
+        s["model"],
+        s["binding"],
+        s["bound"],
+        s["v0"],
+        np.array([0, 0, -9.8]),
+        s["ground"],
+        targets,
+        s["cams"],
+        FPS,
+        pcfg,
+    )
     whole = fit_dynamics(*args, ReconConfig(iterations=3, substep_growth=[1.0], lr_log10_k=0.1), s["rcfg"], seed=1)
     ckpt = Checkpoint(tmp_path / "ckpt", "k")
     fit_dynamics(*args, ReconConfig(iterations=2, substep_growth=[1.0], lr_log10_k=0.1), s["rcfg"], seed=1, ckpt=ckpt)
-    resumed = fit_dynamics(*args, ReconConfig(iterations=3, substep_growth=[1.0], lr_log10_k=0.1), s["rcfg"], seed=1, ckpt=ckpt)
+    resumed = fit_dynamics(
+        *args, ReconConfig(iterations=3, substep_growth=[1.0], lr_log10_k=0.1), s["rcfg"], seed=1, ckpt=ckpt
+    )
     # float32 atomic scatter-adds in the backward sum in a thread-dependent order, so even two
     # uninterrupted runs differ in the last digits (measured: up to 6e-5 relative after 3 passes)
     np.testing.assert_allclose(resumed.log10_k, whole.log10_k, rtol=1e-4)
@@ -139,7 +183,9 @@ def test_refinement_lowers_the_frame0_loss(scene):
 
     def all_view_l1(g):
         g = posed(g, s["bound"].means)
-        return np.mean([np.abs(render_rgb_numpy(g, c, s["rcfg"]) - s["seq"].image(v, 0)).mean() for v, c in enumerate(s["cams"])])
+        return np.mean(
+            [np.abs(render_rgb_numpy(g, c, s["rcfg"]) - s["seq"].image(v, 0)).mean() for v, c in enumerate(s["cams"])]
+        )
 
     before, after = all_view_l1(start), all_view_l1(res.gaussians)
     assert after < 0.7 * before, (before, after)
@@ -150,8 +196,24 @@ def test_log10_k_grid_starts_training_from_the_best_uniform_stiffness(scene):
     s = scene
     pcfg = replace(s["pcfg"], log10_k_init=1.5)
     targets = [frame_targets(s["seq"], f) for f in range(7)]
-    cfg = ReconConfig(iterations=1, substep_growth=[1.0], lr_log10_k=1e-4, lr_friction=1e-4, log10_k_grid=[1.5, 3.0, 4.5])
-    res = fit_dynamics(s["model"], s["binding"], s["bound"], s["v0"], np.array([0, 0, -9.8]), s["ground"], targets, s["cams"], FPS, pcfg, cfg, s["rcfg"], seed=0)
+    cfg = ReconConfig(
+        iterations=1, substep_growth=[1.0], lr_log10_k=1e-4, lr_friction=1e-4, log10_k_grid=[1.5, 3.0, 4.5]
+    )
+    res = fit_dynamics(
+        s["model"],
+        s["binding"],
+        s["bound"],
+        s["v0"],
+        np.array([0, 0, -9.8]),
+        s["ground"],
+        targets,
+        s["cams"],
+        FPS,
+        pcfg,
+        cfg,
+        s["rcfg"],
+        seed=0,
+    )
     assert set(res.k_grid) == {"1.5", "3", "4.5"}
     assert min(res.k_grid, key=res.k_grid.get) == "3", res.k_grid  # the generating stiffness
     assert res.eval_loss_initial == min(res.k_grid.values())

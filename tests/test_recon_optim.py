@@ -5,7 +5,7 @@ import drjit as dr
 import numpy as np
 
 from sgdr.backend import ad
-from sgdr.recon.optim import adam_from_numpy, adam_to_numpy, make_adam
+from sgdr.identify.adam import adam_from_numpy, adam_to_numpy, make_adam
 
 
 def _fresh():

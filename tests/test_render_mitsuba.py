@@ -36,7 +36,9 @@ def test_matches_mitsuba_volprim_rf_basic():
     def mad(a):
         return float(np.abs(a - ref)[region].mean())
 
-    print(f"mean |ours - mitsuba| over covered pixels: {mad(ours):.4f}, whole image {np.abs(ours - ref).mean():.4f}; mirrored {mad(ours[:, ::-1]):.4f}, shifted {mad(np.roll(ours, 1, axis=1)):.4f}")
+    print(
+        f"mean |ours - mitsuba| over covered pixels: {mad(ours):.4f}, whole image {np.abs(ours - ref).mean():.4f}; mirrored {mad(ours[:, ::-1]):.4f}, shifted {mad(np.roll(ours, 1, axis=1)):.4f}"
+    )
     assert mad(ours) < MAD_BOUND
     # the bound is discriminating: a mirrored image or a 1-pixel shift is far outside it
     assert mad(ours[:, ::-1]) > 3 * MAD_BOUND

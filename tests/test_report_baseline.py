@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from sgdr.recon.baseline import physics_free_predictions
-from sgdr.recon.report import (
+from sgdr.evaluate.baselines import physics_free_predictions
+from sgdr.pipeline.report import (
     plot_losses,
     plot_stiffness,
     read_points_ply,

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from sgdr.recon.stages import MARKER, StageRunner
+from sgdr.pipeline.stages import MARKER, StageRunner
 
 
 class _Counter:
@@ -164,8 +164,8 @@ def _leaves(d, prefix=""):
 
 
 def _stage_key_hashes(cfg):
-    from sgdr.recon.pipeline import STAGE_SECTIONS, stage_sections
-    from sgdr.recon.stages import key_hash
+    from sgdr.pipeline.run import STAGE_SECTIONS, stage_sections
+    from sgdr.pipeline.stages import key_hash
 
     return {stage: key_hash(stage_sections(cfg, stage)) for stage in STAGE_SECTIONS}
 
@@ -177,7 +177,7 @@ def test_every_field_of_a_stage_section_is_in_its_key_except_the_listed_ones():
     from omegaconf import OmegaConf
 
     from sgdr.config import compose
-    from sgdr.recon.pipeline import RECON_NEVER_IN_KEYS, RECON_STAGE_FIELDS, STAGE_SECTIONS
+    from sgdr.pipeline.run import RECON_NEVER_IN_KEYS, RECON_STAGE_FIELDS, STAGE_SECTIONS
 
     cfg = OmegaConf.to_object(compose(["preset=tiny"]))
     base = _stage_key_hashes(cfg)
@@ -201,7 +201,7 @@ def test_every_field_of_a_stage_section_is_in_its_key_except_the_listed_ones():
 def test_a_changed_key_is_logged_by_name(tmp_path, caplog):
     s = _Counter()
     StageRunner(tmp_path).run("a", {"recon": {"iterations": 20, "mode": "full"}, "input": "x"}, s.produce, s.load)
-    with caplog.at_level("WARNING", logger="sgdr.recon.stages"):
+    with caplog.at_level("WARNING", logger="sgdr.pipeline.stages"):
         StageRunner(tmp_path).run("a", {"recon": {"iterations": 30, "mode": "full"}, "input": "x"}, s.produce, s.load)
     assert s.calls == 2
     assert "config or inputs changed: recon.iterations: 20 -> 30" in caplog.text

@@ -5,13 +5,13 @@ import pytest
 
 from sgdr.cameras import Camera
 from sgdr.config import compose
-from sgdr.gaussians.config import StaticFitConfig
+from sgdr.evaluate import psnr
 from sgdr.gaussians.model import Gaussians
 from sgdr.gaussians.ply import PROPERTIES, SH_C0, load_ply, save_ply
-from sgdr.gaussians.static_fit import StaticFitError, box_from_masks, fit_static
 from sgdr.render.config import RenderConfig
-from sgdr.metrics import psnr
 from sgdr.render.splat import render
+from sgdr.static_fit.config import StaticFitConfig
+from sgdr.static_fit.fit import StaticFitError, box_from_masks, fit_static
 
 
 def _known_scene(s0, n=300, seed=0):
@@ -47,7 +47,9 @@ def test_static_fit_tiny_recovers_known_scene_held_out_psnr():
     cams = _ring_cameras(10, res)
     images = [_rgba(truth, c, rcfg) for c in cams]
     train, held_out = [0, 1, 2, 3, 5, 6, 7, 8], [4, 9]
-    g = fit_static([images[i] for i in train], [cams[i] for i in train], fit_cfg, rcfg, box=None, seed=0, progress=False)
+    g = fit_static(
+        [images[i] for i in train], [cams[i] for i in train], fit_cfg, rcfg, box=None, seed=0, progress=False
+    )
     assert 0 < g.count <= fit_cfg.n_init
     scores = [psnr(np.asarray(render(g, cams[i], rcfg).rgb), images[i][..., :3]) for i in held_out]
     assert min(scores) >= 28.0, scores
@@ -67,15 +69,20 @@ def test_box_from_masks_contains_the_object():
 def test_ply_round_trip_in_3dgs_layout(tmp_path, rng):
     m = 7
     g = Gaussians.from_numpy(
-        rng.uniform(0, 1, (m, 3)), rng.normal(-3, 0.3, (m, 3)), rng.normal(size=(m, 4)),
-        rng.normal(size=(m, 3)), rng.normal(size=m),
+        rng.uniform(0, 1, (m, 3)),
+        rng.normal(-3, 0.3, (m, 3)),
+        rng.normal(size=(m, 4)),
+        rng.normal(size=(m, 3)),
+        rng.normal(size=m),
     )
     path = save_ply(tmp_path / "g.ply", g)
     raw = path.read_bytes()
     header = raw[: raw.index(b"end_header")].decode().splitlines()
     assert header[:3] == ["ply", "format binary_little_endian 1.0", f"element vertex {m}"]
     assert [h.split()[-1] for h in header[3:]] == PROPERTIES
-    body = np.frombuffer(raw[raw.index(b"end_header") + len(b"end_header\n") :], dtype="<f4").reshape(m, len(PROPERTIES))
+    body = np.frombuffer(raw[raw.index(b"end_header") + len(b"end_header\n") :], dtype="<f4").reshape(
+        m, len(PROPERTIES)
+    )
     d = g.to_numpy()
     rgb = 1 / (1 + np.exp(-d["color_logits"]))
     np.testing.assert_allclose(body[:, 6:9], (rgb - 0.5) / SH_C0, rtol=1e-5, atol=1e-6)  # f_dc

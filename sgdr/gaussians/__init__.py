@@ -1,6 +1,6 @@
 """3D Gaussians: the appearance model, PLY import/export and the static fit.
 
-`fit_static` lives in `sgdr.gaussians.static_fit` (it uses the renderer, which uses this
+`fit_static` lives in `sgdr.static_fit.fit` (it uses the renderer, which uses this
 package, so it is not re-exported here).
 """
 

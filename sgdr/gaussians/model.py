@@ -43,7 +43,6 @@ class Gaussians:
     color_logits: object  # Array3f [M] colour = sigmoid(color_logits), RGB in [0, 1]
     opacity_logits: object  # Float [M] opacity = sigmoid(opacity_logits)
 
-
     @property
     def count(self) -> int:
         """Number of Gaussians M."""
@@ -57,7 +56,7 @@ class Gaussians:
         rotations: np.ndarray | None = None,  # [M, 4] (w, x, y, z); None = identity
         color_logits: np.ndarray | None = None,  # [M, 3]; None = grey (logit 0)
         opacity_logits: np.ndarray | None = None,  # [M]; None = opacity 0.5
-    ) -> "Gaussians":
+    ) -> Gaussians:
         """Build from NumPy arrays; missing fields get neutral defaults."""
         t = ad()
         means = np.asarray(means, dtype=np.float64).reshape(-1, 3)
@@ -69,9 +68,7 @@ class Gaussians:
             log_scales = np.full((m, 3), float(log_scales))
         elif log_scales.ndim == 1:
             log_scales = np.repeat(log_scales[:, None], 3, axis=1)
-        rotations = (
-            np.tile([1.0, 0.0, 0.0, 0.0], (m, 1)) if rotations is None else np.asarray(rotations, np.float64)
-        )
+        rotations = np.tile([1.0, 0.0, 0.0, 0.0], (m, 1)) if rotations is None else np.asarray(rotations, np.float64)
         color_logits = np.zeros((m, 3)) if color_logits is None else np.asarray(color_logits, np.float64)
         opacity_logits = np.zeros(m) if opacity_logits is None else np.asarray(opacity_logits, np.float64)
         for name, arr, shape in (
@@ -95,7 +92,7 @@ class Gaussians:
         )
 
     @staticmethod
-    def isotropic(means: np.ndarray, scale: float | np.ndarray, colors: np.ndarray, opacities) -> "Gaussians":
+    def isotropic(means: np.ndarray, scale: float | np.ndarray, colors: np.ndarray, opacities) -> Gaussians:
         """Isotropic Gaussians from scales (scene units), RGB colours and opacities in (0, 1)."""
         means = np.asarray(means, dtype=np.float64).reshape(-1, 3)
         scale = np.broadcast_to(np.asarray(scale, dtype=np.float64), (means.shape[0],))
@@ -119,13 +116,13 @@ class Gaussians:
             "opacity_logits": arr(self.opacity_logits).reshape(-1),
         }
 
-    def subset(self, keep: np.ndarray) -> "Gaussians":
+    def subset(self, keep: np.ndarray) -> Gaussians:
         """Detached copy holding the Gaussians where the boolean mask `keep` [M] is true."""
         d = self.to_numpy()
         keep = np.asarray(keep, dtype=bool)
         return Gaussians.from_numpy(*(d[k][keep] for k in _FIELDS))
 
-    def detach(self) -> "Gaussians":
+    def detach(self) -> Gaussians:
         import drjit as dr
 
         return Gaussians(*(dr.detach(getattr(self, k)) for k in _FIELDS))

@@ -29,9 +29,22 @@ PROPERTIES = (
     + [f"rot_{i}" for i in range(4)]
 )
 _PLY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
-    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
 }
 
 
@@ -47,7 +60,14 @@ def save_ply(path, gaussians: Gaussians) -> Path:
     m = len(d["opacity_logits"])
     rgb = sigmoid(d["color_logits"])
     cols = np.concatenate(
-        [d["means"], np.zeros((m, 3)), (rgb - 0.5) / SH_C0, d["opacity_logits"][:, None], d["log_scales"], d["rotations"]],
+        [
+            d["means"],
+            np.zeros((m, 3)),
+            (rgb - 0.5) / SH_C0,
+            d["opacity_logits"][:, None],
+            d["log_scales"],
+            d["rotations"],
+        ],
         axis=1,
     ).astype("<f4")
     header = ["ply", "format binary_little_endian 1.0", f"element vertex {m}"]

@@ -24,7 +24,7 @@ spring.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import drjit as dr
 
@@ -212,16 +212,39 @@ class _Frame(dr.CustomOp):
             g_bar, mu_bar, e_bar = g_bar + gg, mu_bar + gmu, e_bar + ge
             dr.eval(x_bar, v_bar, k_bar, sp_bar, z_bar, g_bar, mu_bar, e_bar)
         self.tape = []
-        for name, value in (("x", x_bar), ("v", v_bar), ("k", k_bar), ("sp", sp_bar), ("zeta0", z_bar),
-                            ("gravity", g_bar), ("friction", mu_bar), ("restitution", e_bar)):
+        for name, value in (
+            ("x", x_bar),
+            ("v", v_bar),
+            ("k", k_bar),
+            ("sp", sp_bar),
+            ("zeta0", z_bar),
+            ("gravity", g_bar),
+            ("friction", mu_bar),
+            ("restitution", e_bar),
+        ):
             self.set_grad_in(name, value)
 
     def name(self):
         return "SpringMassFrame"
 
 
-def frame_gather(model: SpringModel, x, v, k, sp, zeta0, gravity, friction, restitution, consts, dt: float,
-                 n_sub: int, cfg: PhysicsConfig, forces: Callable, step: Callable):
+def frame_gather(
+    model: SpringModel,
+    x,
+    v,
+    k,
+    sp,
+    zeta0,
+    gravity,
+    friction,
+    restitution,
+    consts,
+    dt: float,
+    n_sub: int,
+    cfg: PhysicsConfig,
+    forces: Callable,
+    step: Callable,
+):
     """(x, v) after n_sub substeps, differentiable in every array argument through `_Frame`.
 
     forces(model, x, v, k, sp, zeta0, cfg) -> f is the forward spring sum; step(x, v, f, gravity,
@@ -230,5 +253,21 @@ def frame_gather(model: SpringModel, x, v, k, sp, zeta0, gravity, friction, rest
     broadcast reduces them (width-1 adjoints made Dr.Jit compile a kernel per call)."""
     t = ad()
     wide, wide3 = dr.zeros(t.Float, model.n_anchors), dr.zeros(t.Array3f, model.n_anchors)
-    return dr.custom(_Frame, x, v, k, sp + wide, zeta0 + wide, gravity + wide3, friction + wide,
-                     restitution + wide, model, consts, dt, n_sub, cfg, forces, step)
+    return dr.custom(
+        _Frame,
+        x,
+        v,
+        k,
+        sp + wide,
+        zeta0 + wide,
+        gravity + wide3,
+        friction + wide,
+        restitution + wide,
+        model,
+        consts,
+        dt,
+        n_sub,
+        cfg,
+        forces,
+        step,
+    )

@@ -20,7 +20,9 @@ class PhysicsConfig:
     soft_vector_normalised: bool = True  # official: exponent (r - n_c) / (n_k - n_c) for the 0-based rank r (Eq. 15); False: j - n_c, 1-based j (paper)
     contact: str = "project"  # "project" (official, per-substep μ) | "coulomb" (restitution e, μ)
     rest_speed_factor: float = 2.0  # "coulomb": approach speeds below this x |g| dt are resting contact (no bounce)
-    n_substeps: int = 100  # n_t, semi-implicit Euler substeps per frame (the dynamic stage scales it by recon.substep_growth)
+    n_substeps: int = (
+        100  # n_t, semi-implicit Euler substeps per frame (the dynamic stage scales it by recon.substep_growth)
+    )
     max_substeps: int = 400  # upper limit when retrying an unstable rollout with more substeps
     retry_on_nan: bool = True  # the official remedy, the only one: an unstable frame is redone with 2x substeps
     cfl_factor: float = 1.4  # stability bound checked before running: dt <= cfl_factor * sqrt(m / k_eff)

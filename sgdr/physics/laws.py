@@ -13,7 +13,6 @@ import drjit as dr
 from sgdr.physics.model import PhysicsInputError
 from sgdr.registry import Registry
 
-
 # --------------------------------------------------------------------------------------------
 # Spring laws (Eq. 8): F_k = -η_j k_ij g(Δl) d̂ with Δl = |x_i - x_j| - l_ij.
 # Each takes (Δl, 1 / l_ij, p_k, eps) and returns g(Δl) (scene units): k_ij g(Δl) is a force.
@@ -211,8 +210,12 @@ def contact_coulomb(x, v, point, normal, params, dt: float, g_norm, cfg):
 
 
 # The boundary parameters Θ(B) each contact model uses (the ones the dynamic stage learns).
-CONTACT_PARAMETERS = Registry("contact model", "physics.contact", PhysicsInputError,
-                              {"project": ("friction",), "coulomb": ("friction", "restitution")})
+CONTACT_PARAMETERS = Registry(
+    "contact model",
+    "physics.contact",
+    PhysicsInputError,
+    {"project": ("friction",), "coulomb": ("friction", "restitution")},
+)
 
 
 LN10 = math.log(10.0)

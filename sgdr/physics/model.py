@@ -178,7 +178,7 @@ class PhysParams:
     gravity: object  # Array3f [1] g, scene units / s², world frame
 
     @staticmethod
-    def init(model: SpringModel, cfg: PhysicsConfig, v0=(0.0, 0.0, 0.0), gravity=(0.0, 0.0, -9.8)) -> "PhysParams":
+    def init(model: SpringModel, cfg: PhysicsConfig, v0=(0.0, 0.0, 0.0), gravity=(0.0, 0.0, -9.8)) -> PhysParams:
         t = ad()
         v0 = _vec3("v0", v0)
         gravity = _vec3("gravity", gravity)
@@ -196,7 +196,7 @@ class PhysParams:
         dr.make_opaque(params)
         return params
 
-    def detach(self) -> "PhysParams":
+    def detach(self) -> PhysParams:
         return PhysParams(**{f: dr.detach(getattr(self, f)) for f in self.__dataclass_fields__})
 
     def validate(self, model: SpringModel) -> None:
@@ -221,7 +221,7 @@ class SimState:
     v: object  # Array3f [N_A] scene units / s
 
     @staticmethod
-    def at_rest(model: SpringModel, v0) -> "SimState":
+    def at_rest(model: SpringModel, v0) -> SimState:
         """Anchors at their rest positions moving with one velocity v0 (Array3f [1], e.g.
         `params.v0`, keeps its gradient; or 3 numbers)."""
         t = ad()
@@ -232,13 +232,13 @@ class SimState:
         return SimState(x=x, v=v)
 
     @staticmethod
-    def from_numpy(x: np.ndarray, v: np.ndarray) -> "SimState":
+    def from_numpy(x: np.ndarray, v: np.ndarray) -> SimState:
         t = ad()
         x = _as_points("SimState.x", x)
         v = _as_points("SimState.v", v, x.shape[0])
         return SimState(x=t.Array3f(*x.T.astype(np.float32)), v=t.Array3f(*v.T.astype(np.float32)))
 
-    def detach(self) -> "SimState":
+    def detach(self) -> SimState:
         return SimState(x=dr.detach(self.x), v=dr.detach(self.v))
 
     def numpy(self) -> tuple[np.ndarray, np.ndarray]:

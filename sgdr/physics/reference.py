@@ -125,7 +125,9 @@ def simulate_frame(m: dict, p: dict, x, v, ground, dt_frame: float, n_substeps: 
     return x, v
 
 
-def rollout(m: dict, p: dict, ground, n_frames: int, dt_frame: float, n_substeps: int, cfg: PhysicsConfig, x0=None, v0=None):
+def rollout(
+    m: dict, p: dict, ground, n_frames: int, dt_frame: float, n_substeps: int, cfg: PhysicsConfig, x0=None, v0=None
+):
     """[(x, v)] for frames 0..n_frames-1 from rest positions (or x0) moving with p["v0"] (or v0)."""
     x = m["x_rest"].copy() if x0 is None else np.array(x0, dtype=np.float64)
     v = np.broadcast_to(p["v0"], x.shape).copy() if v0 is None else np.array(v0, dtype=np.float64)

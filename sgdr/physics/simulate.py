@@ -62,7 +62,7 @@ Cost: measured gradient / forward at 2048 x 256 for both adjoints: README "Simul
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import drjit as dr
 import numpy as np
@@ -239,7 +239,9 @@ def stable_substeps(model: SpringModel, params: PhysParams, dt_frame: float, cfg
     return int(np.ceil(dt_frame / dt_max))
 
 
-def check_inputs(model: SpringModel, params: PhysParams, state: SimState, dt_frame: float, n_substeps: int, cfg: PhysicsConfig) -> None:
+def check_inputs(
+    model: SpringModel, params: PhysParams, state: SimState, dt_frame: float, n_substeps: int, cfg: PhysicsConfig
+) -> None:
     """Sizes, finiteness and the stability bound; raises naming the field / setting."""
     params.validate(model)
     for name in ("x", "v"):
@@ -303,13 +305,16 @@ def _contact_consts(c: dict):
     return c["inv_m"], c["point"], c["normal"], c["g_norm"]
 
 
-def substep(model: SpringModel, params: PhysParams, state: SimState, ground_c: dict, dt: float, cfg: PhysicsConfig) -> SimState:
+def substep(
+    model: SpringModel, params: PhysParams, state: SimState, ground_c: dict, dt: float, cfg: PhysicsConfig
+) -> SimState:
     """One semi-implicit Euler substep (Eqs. 10-13), recorded AD; `ground_c` from `_frame_constants`."""
     springs = SPRINGS.get_named(cfg.springs, "physics.springs")
     c = ground_c
     f = springs(model, state.x, state.v, c["k"], c["sp"], params.zeta0, cfg)
-    x, v = euler_contact(state.x, state.v, f, params.gravity, params.friction, params.restitution,
-                         _contact_consts(c), dt, cfg)
+    x, v = euler_contact(
+        state.x, state.v, f, params.gravity, params.friction, params.restitution, _contact_consts(c), dt, cfg
+    )
     if dr.grad_enabled(f):
         # f too, in the same kernel: the contact's backward re-reads the pre-contact x, v, which
         # would otherwise re-run (and re-compile) the spring loop for every substep
@@ -382,7 +387,7 @@ GRAD_MODES["truncated"] = SimState.detach  # official: each frame from the detac
 def doubled_substeps(n_substeps: int, cfg: PhysicsConfig) -> int | None:
     """The one remedy for an unstable frame (official): n_t doubled. None when
     physics.retry_on_nan is off or 2 n_t would exceed physics.max_substeps. `rollout` and the
-    dynamic stage's frame-by-frame schedule (sgdr.recon.dynamics) both use it."""
+    dynamic stage's frame-by-frame schedule (sgdr.identify.dynamics) both use it."""
     if not cfg.retry_on_nan or 2 * int(n_substeps) > cfg.max_substeps:
         return None
     return 2 * int(n_substeps)

@@ -49,7 +49,13 @@ def mitsuba_scene(gaussians: Gaussians, camera: Camera, spp: int = 1, max_depth:
         "to_world": mi.ScalarTransform4f().look_at(
             origin=camera.centre.tolist(), target=(camera.centre + camera.R[2]).tolist(), up=(-camera.R[1]).tolist()
         ),
-        "film": {"type": "hdrfilm", "width": camera.width, "height": camera.height, "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+        "film": {
+            "type": "hdrfilm",
+            "width": camera.width,
+            "height": camera.height,
+            "rfilter": {"type": "box"},
+            "pixel_format": "rgb",
+        },
         "sampler": {"type": "independent", "sample_count": int(spp)},
     }
     return mi.load_dict(

@@ -54,7 +54,6 @@ from sgdr.cameras import Camera
 from sgdr.gaussians.model import Gaussians
 from sgdr.render.config import RenderConfig
 
-
 # Reduction mode of the adjoint's per-entry scatter-add. Auto = Expand on the LLVM backend
 # (per-core copies, no atomics), measured fastest here against Local and Direct.
 _SCATTER_MODE = dr.ReduceMode.Auto
@@ -112,6 +111,7 @@ def _quat_to_matrix(q):
 def project(g: Gaussians, camera: Camera, cfg: RenderConfig) -> Projected:
     """Phase 1: EWA projection of every Gaussian (recorded AD; one thread per Gaussian)."""
     t = ad()
+
     # camera constants as opaque JIT scalars: one compiled kernel serves every view
     def c(x):
         return dr.opaque(t.Float, float(x))
@@ -455,7 +455,9 @@ class _Rasterize(dr.CustomOp):
                     -dpower * dx * dy,  # δ conic b
                     -0.5 * dpower * dy * dy,  # δ conic c
                     dalpha * gauss,  # δσ
-                    dcol.x, dcol.y, dcol.z,
+                    dcol.x,
+                    dcol.y,
+                    dcol.z,
                 )
                 acc = [a_ + b_ for a_, b_ in zip(acc, terms)]
                 any_contrib |= contrib
@@ -563,7 +565,5 @@ def render(gaussians: Gaussians, camera: Camera, cfg: RenderConfig) -> RenderOut
         rgb = t.TensorXf(attached_zeros(height * width * 3) + t.Float(bg_img), (height, width, 3))
         alpha = t.TensorXf(attached_zeros(height * width), (height, width))
         return RenderOutput(rgb=rgb, alpha=alpha)
-    rgb, alpha = dr.custom(
-        _Rasterize, proj.mean2d, proj.conic, proj.color, proj.opacity, bins, width, height, cfg, bg
-    )
+    rgb, alpha = dr.custom(_Rasterize, proj.mean2d, proj.conic, proj.color, proj.opacity, bins, width, height, cfg, bg)
     return RenderOutput(rgb=t.TensorXf(rgb, (height, width, 3)), alpha=t.TensorXf(alpha, (height, width)))

@@ -48,7 +48,9 @@ def effects_record(cfg: SynthConfig) -> dict:
         "ground": str(cfg.ground),
         "ground_friction": float(cfg.ground_friction),
     }
-    active = [k for k in ("plastic_yield", "air_drag", "stiff_ratio", "gravity") if record[k] != getattr(base.effects, k)]
+    active = [
+        k for k in ("plastic_yield", "air_drag", "stiff_ratio", "gravity") if record[k] != getattr(base.effects, k)
+    ]
     if cfg.ground != base.ground:
         active.append("ground")
     record["active"] = active

@@ -79,7 +79,7 @@ class MPMParams:
     yield_stress: object  # Float [1], von Mises yield stress, Pa (used when model.plastic)
 
     @staticmethod
-    def create(E, nu, gravity, drag=0.0, yield_stress=0.0) -> "MPMParams":
+    def create(E, nu, gravity, drag=0.0, yield_stress=0.0) -> MPMParams:
         t = ad()
         g = [float(c) for c in gravity]
         return MPMParams(
@@ -101,7 +101,7 @@ class MPMState:
     F: object  # Matrix3f [P], elastic deformation gradient
 
     @staticmethod
-    def at_rest(x: np.ndarray, v0) -> "MPMState":
+    def at_rest(x: np.ndarray, v0) -> MPMState:
         """Undeformed particles at x [P, 3] moving with the common velocity v0.
 
         v0: three numbers, or an Array3f [1] (keeps its gradient: d/dv0 flows into v).
@@ -143,8 +143,7 @@ def create_model(
     hi = np.asarray(origin, dtype=np.float64) + (n_grid - wall_cells) * dx
     if np.any(x_rest < lo) or np.any(x_rest > hi):
         raise MPMError(
-            f"particles outside the MPM domain interior [{lo}, {hi}]: move the object or "
-            "enlarge synth.mpm_grid"
+            f"particles outside the MPM domain interior [{lo}, {hi}]: move the object or enlarge synth.mpm_grid"
         )
     normal = np.asarray(ground_normal, dtype=np.float64)
     scale = np.ones(n) if E_scale is None else np.asarray(E_scale, dtype=np.float64)
@@ -189,8 +188,12 @@ def kirchhoff_fixed_corotated(F, mu, lam):
     return (2.0 * mu) * ((F - R) @ F.T) + (lam * (J - 1.0) * J) * I
 
 
-CONSTITUTIVE = Registry("MPM material", "synth.material", MPMError,
-                        {"neo_hookean": kirchhoff_neo_hookean, "fixed_corotated": kirchhoff_fixed_corotated})
+CONSTITUTIVE = Registry(
+    "MPM material",
+    "synth.material",
+    MPMError,
+    {"neo_hookean": kirchhoff_neo_hookean, "fixed_corotated": kirchhoff_fixed_corotated},
+)
 
 
 def von_mises_return(F, mu, yield_stress):
@@ -230,8 +233,12 @@ def collider_friction(v, n, vn, friction):
     return dr.select(vn < 0, vt * keep, v)
 
 
-COLLIDERS = Registry("MPM ground collider", "synth.ground", MPMError,
-                     {"sticky": collider_sticky, "slip": collider_slip, "friction": collider_friction})
+COLLIDERS = Registry(
+    "MPM ground collider",
+    "synth.ground",
+    MPMError,
+    {"sticky": collider_sticky, "slip": collider_slip, "friction": collider_friction},
+)
 
 
 # ---------------------------------------------------------------------------- transfers

@@ -154,15 +154,20 @@ class ObjectSpec:
     colours: tuple  # two linear RGB colours of the pattern
 
 
-OBJECTS = Registry("benchmark object", "synth.object", ObjectError, {
-    "torus": ObjectSpec(sdf_torus, (1, 0, 0), 25.0, ((0.8, 0.35, 0.1), (0.95, 0.85, 0.3))),
-    "cross": ObjectSpec(sdf_cross, (1, 1, 0), 20.0, ((0.15, 0.35, 0.8), (0.9, 0.9, 0.9))),
-    "cream": ObjectSpec(sdf_cream, (0, 1, 0), 10.0, ((0.95, 0.9, 0.75), (0.55, 0.3, 0.15))),
-    "apple": ObjectSpec(sdf_apple, (1, 0, 0), 15.0, ((0.75, 0.08, 0.06), (0.85, 0.75, 0.2))),
-    "paste": ObjectSpec(sdf_paste, (0, 0, 1), 30.0, ((0.9, 0.9, 0.95), (0.1, 0.4, 0.75))),
-    "chess": ObjectSpec(sdf_chess, (1, 0, 0), 0.0, ((0.1, 0.1, 0.12), (0.85, 0.8, 0.7))),
-    "banana": ObjectSpec(sdf_banana, (1, 0, 0), 15.0, ((0.9, 0.8, 0.15), (0.35, 0.25, 0.05))),
-})
+OBJECTS = Registry(
+    "benchmark object",
+    "synth.object",
+    ObjectError,
+    {
+        "torus": ObjectSpec(sdf_torus, (1, 0, 0), 25.0, ((0.8, 0.35, 0.1), (0.95, 0.85, 0.3))),
+        "cross": ObjectSpec(sdf_cross, (1, 1, 0), 20.0, ((0.15, 0.35, 0.8), (0.9, 0.9, 0.9))),
+        "cream": ObjectSpec(sdf_cream, (0, 1, 0), 10.0, ((0.95, 0.9, 0.75), (0.55, 0.3, 0.15))),
+        "apple": ObjectSpec(sdf_apple, (1, 0, 0), 15.0, ((0.75, 0.08, 0.06), (0.85, 0.75, 0.2))),
+        "paste": ObjectSpec(sdf_paste, (0, 0, 1), 30.0, ((0.9, 0.9, 0.95), (0.1, 0.4, 0.75))),
+        "chess": ObjectSpec(sdf_chess, (1, 0, 0), 0.0, ((0.1, 0.1, 0.12), (0.85, 0.8, 0.7))),
+        "banana": ObjectSpec(sdf_banana, (1, 0, 0), 15.0, ((0.9, 0.8, 0.15), (0.35, 0.25, 0.05))),
+    },
+)
 
 
 # ---------------------------------------------------------------------------- building

@@ -119,7 +119,7 @@ class RunTracker:
         self._metrics: dict[str, float] = {}
 
     # ------------------------------------------------------------------ lifecycle
-    def __enter__(self) -> "RunTracker":
+    def __enter__(self) -> RunTracker:
         import yaml
 
         self.out_dir.mkdir(parents=True, exist_ok=True)
@@ -177,7 +177,9 @@ class RunTracker:
         path = self.out_dir / "metrics.json"
         path.write_text(json.dumps(metrics, indent=2, sort_keys=True, default=float))
         scalars = {
-            k: v for k, v in flatten_config(dict(metrics)).items() if isinstance(v, (int, float)) and not isinstance(v, bool)
+            k: v
+            for k, v in flatten_config(dict(metrics)).items()
+            if isinstance(v, (int, float)) and not isinstance(v, bool)
         }
         self.log_metrics(scalars)
         self.log_artifact(path)

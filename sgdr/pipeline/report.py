@@ -42,7 +42,9 @@ def tile(images: Sequence[np.ndarray], cols: int | None = None, pad: int = 2) ->
     return out
 
 
-def side_by_side(gt_views: Sequence[np.ndarray], pred_views: Sequence[np.ndarray], cols: int | None = None) -> np.ndarray:
+def side_by_side(
+    gt_views: Sequence[np.ndarray], pred_views: Sequence[np.ndarray], cols: int | None = None
+) -> np.ndarray:
     """One video frame: every view as a [ground truth | prediction] pair, pairs tiled."""
     if len(gt_views) != len(pred_views):
         raise ValueError(f"side_by_side: {len(gt_views)} ground-truth views vs {len(pred_views)} predicted")
@@ -70,6 +72,7 @@ def write_video(path, frames: Sequence[np.ndarray], fps: float) -> Path:
 
 # ------------------------------------------------------------------------------ plots
 
+
 def _save_figure(fig, path) -> Path:
     """Lay out, write (creating the folder) and close a matplotlib figure; return its path."""
     import matplotlib.pyplot as plt
@@ -80,6 +83,7 @@ def _save_figure(fig, path) -> Path:
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
 
 def plot_losses(path, curves: Mapping[str, Sequence[float]], title: str = "losses") -> Path:
     """One line per named curve against its step index (log y when all values are > 0)."""

@@ -28,11 +28,11 @@ import numpy as np
 from sgdr.arrays import to_numpy
 from sgdr.backend import ad
 from sgdr.cameras import Camera
-from sgdr.gaussians.config import StaticFitConfig
 from sgdr.gaussians.model import Gaussians, sigmoid
+from sgdr.loss import image_loss, mask_loss
 from sgdr.render.config import RenderConfig
-from sgdr.render.losses import image_loss, mask_loss
 from sgdr.render.splat import render
+from sgdr.static_fit.config import StaticFitConfig
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +43,9 @@ class StaticFitError(ValueError):
 
 def _check_inputs(images, cameras):
     if len(images) == 0 or len(images) != len(cameras):
-        raise StaticFitError(f"fit_static: need one image per camera, got {len(images)} images and {len(cameras)} cameras")
+        raise StaticFitError(
+            f"fit_static: need one image per camera, got {len(images)} images and {len(cameras)} cameras"
+        )
     for i, (img, cam) in enumerate(zip(images, cameras)):
         shape = np.shape(img)
         if shape != (cam.height, cam.width, 4):
@@ -142,9 +144,7 @@ def fit_static(
         if not np.all(hi > lo):
             raise StaticFitError(f"fit_static: box must have hi > lo, got lo={lo}, hi={hi}")
     rng = np.random.default_rng(seed)
-    g0 = Gaussians.isotropic(
-        rng.uniform(lo, hi, (int(cfg.n_init), 3)), cfg.s0, np.full(3, 0.5), cfg.init_opacity
-    )
+    g0 = Gaussians.isotropic(rng.uniform(lo, hi, (int(cfg.n_init), 3)), cfg.s0, np.full(3, 0.5), cfg.init_opacity)
     targets, masks = _targets(images, render_cfg.background)
     opt = _make_optimizer(g0.means, g0.color_logits, g0.opacity_logits, cfg)
     n_views, k = len(cameras), min(int(cfg.views_per_step), len(cameras))
@@ -152,7 +152,9 @@ def fit_static(
     decay = (cfg.lr_position_final / cfg.lr_position) ** (1.0 / max(n_it - 1, 1))
 
     def current(count):
-        rot = t.Array4f(dr.ones(t.Float, count), dr.zeros(t.Float, count), dr.zeros(t.Float, count), dr.zeros(t.Float, count))
+        rot = t.Array4f(
+            dr.ones(t.Float, count), dr.zeros(t.Float, count), dr.zeros(t.Float, count), dr.zeros(t.Float, count)
+        )
         s = dr.full(t.Float, float(np.log(cfg.s0)), count)
         return Gaussians(opt["means"], t.Array3f(s, s, s), rot, opt["color_logits"], opt["opacity_logits"])
 

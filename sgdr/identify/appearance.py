@@ -19,9 +19,9 @@ import drjit as dr
 import numpy as np
 
 from sgdr.arrays import scalar
-from sgdr.recon.common import as_array3, isotropic_log_scale
-from sgdr.recon.config import ReconConfig
-from sgdr.recon.optim import make_adam
+from sgdr.identify.adam import make_adam
+from sgdr.identify.common import as_array3, isotropic_log_scale
+from sgdr.pipeline.config import ReconConfig
 
 
 @dataclass
@@ -30,14 +30,16 @@ class RefineResult:
     losses: list[float]  # (1-λ) L1 + λ D-SSIM per step
 
 
-def refine_appearance(gaussians, means, targets: list, cameras: list, cfg: ReconConfig, render_cfg, seed: int, progress: bool = False) -> RefineResult:
+def refine_appearance(
+    gaussians, means, targets: list, cameras: list, cfg: ReconConfig, render_cfg, seed: int, progress: bool = False
+) -> RefineResult:
     """Adam over (log scale [M], colour logits [M, 3], opacity logits [M]) at fixed `means`.
 
     One random view per step (seeded); `cfg.refine_iterations` steps; learning rates
     `cfg.lr_scale`, `cfg.lr_color`, `cfg.lr_opacity`; loss weight `cfg.refine_lambda_dssim`.
     """
-    from sgdr.recon.common import render
-    from sgdr.render.losses import image_loss
+    from sgdr.identify.common import render
+    from sgdr.loss import image_loss
 
     means = dr.detach(means)
     g = gaussians.detach()

@@ -89,7 +89,10 @@ def _flatten(x: Any, prefix: str = "") -> dict[str, Any]:
 
 def changed_entries(old: Any, new: Any, limit: int = 6) -> str:
     """The entries of two stage keys that differ, as `name: old -> new`, comma separated."""
-    a, b = _flatten(json.loads(json.dumps(plain(old), default=str))), _flatten(json.loads(json.dumps(plain(new), default=str)))
+    a, b = (
+        _flatten(json.loads(json.dumps(plain(old), default=str))),
+        _flatten(json.loads(json.dumps(plain(new), default=str))),
+    )
     names = sorted(k for k in a.keys() | b.keys() if a.get(k, "<absent>") != b.get(k, "<absent>"))
 
     def show(v) -> str:
@@ -134,7 +137,9 @@ class Checkpoint:
     def save(self, step: int, arrays: Mapping[str, np.ndarray]) -> None:
         self.folder.mkdir(parents=True, exist_ok=True)
         tmp = self.folder / "last.tmp.npz"
-        np.savez(tmp, __step__=np.int64(step), __key__=np.array(self.key), **{k: np.asarray(v) for k, v in arrays.items()})
+        np.savez(
+            tmp, __step__=np.int64(step), __key__=np.array(self.key), **{k: np.asarray(v) for k, v in arrays.items()}
+        )
         os.replace(tmp, self.path)
 
     def load(self) -> tuple[int, dict[str, np.ndarray]] | None:

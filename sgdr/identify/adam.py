@@ -2,7 +2,7 @@
 
 We never write an optimiser: these only build one with per-parameter learning rates, and
 move its state (parameter values and Adam moments) to and from NumPy so a long stage can
-checkpoint and resume exactly (`sgdr.recon.stages.Checkpoint`).
+checkpoint and resume exactly (`sgdr.pipeline.stages.Checkpoint`).
 """
 
 from __future__ import annotations

@@ -44,7 +44,14 @@ class IDWBinding:
     form: str  # "official" | "displacement"
 
     @staticmethod
-    def build(rest_centres: np.ndarray, anchors: np.ndarray, n_b: int, p_b: float, form: str = "official", min_distance: float = 1e-8) -> "IDWBinding":
+    def build(
+        rest_centres: np.ndarray,
+        anchors: np.ndarray,
+        n_b: int,
+        p_b: float,
+        form: str = "official",
+        min_distance: float = 1e-8,
+    ) -> IDWBinding:
         t = ad()
         rest_centres = np.asarray(rest_centres, dtype=np.float64)
         anchors = np.asarray(anchors, dtype=np.float64)

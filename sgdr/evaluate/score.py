@@ -7,7 +7,7 @@ frame 0) and the future prediction (frames n_fit..n_frames-1):
   generator's particles (`Sequence.gt_particles`), when the sequence has them;
 - images: PSNR and SSIM of every view's render against the ground-truth RGB.
 
-The physics-free baseline (`sgdr.recon.baseline`) continues the *reconstructed* centres of
+The physics-free baseline (`sgdr.evaluate.baselines`) continues the *reconstructed* centres of
 frames n_fit-2 and n_fit-1 without physics. `baseline_future_cd` is the issue's definition:
 the better (on the future frames) of "ballistic" and "held still"; every variant's score,
 including the constant-velocity extrapolation, is in `baseline_future_cd_by_variant`.
@@ -19,8 +19,8 @@ import math
 
 import numpy as np
 
-from sgdr.metrics import chamfer_distance, earth_movers_distances, psnr, ssim
-from sgdr.recon.baseline import ISSUE_BASELINES, physics_free_predictions
+from sgdr.evaluate import chamfer_distance, earth_movers_distances, psnr, ssim
+from sgdr.evaluate.baselines import ISSUE_BASELINES, physics_free_predictions
 
 
 def _mean(xs) -> float:
@@ -43,7 +43,9 @@ def evaluate_prediction(prediction, seq, with_emd: bool = True, seed: int = 0, w
     has_gt = seq.gt_particles(0) is not None
     gts = [seq.gt_particles(f) for f in range(seq.n_frames)] if has_gt else [None] * seq.n_frames
     if has_gt and with_emd:
-        per_frame["emd"] = earth_movers_distances(zip(prediction.centres[: seq.n_frames], gts), seed=seed, workers=workers)
+        per_frame["emd"] = earth_movers_distances(
+            zip(prediction.centres[: seq.n_frames], gts), seed=seed, workers=workers
+        )
     else:
         per_frame["emd"] = [None] * seq.n_frames
     for f in range(seq.n_frames):
@@ -67,8 +69,13 @@ def evaluate_prediction(prediction, seq, with_emd: bool = True, seed: int = 0, w
     n_future = seq.n_frames - n_fit
     if has_gt and n_fit >= 2 and n_future > 0:
         cands = physics_free_predictions(
-            prediction.centres[n_fit - 2], prediction.centres[n_fit - 1], n_future, 1.0 / float(seq.fps),
-            np.asarray(seq.gravity, float), np.asarray(seq.ground_point, float), np.asarray(seq.ground_normal, float),
+            prediction.centres[n_fit - 2],
+            prediction.centres[n_fit - 1],
+            n_future,
+            1.0 / float(seq.fps),
+            np.asarray(seq.gravity, float),
+            np.asarray(seq.ground_point, float),
+            np.asarray(seq.ground_normal, float),
         )
         base = {
             name: _mean(chamfer_distance(pts, gts[n_fit + k], seed=seed) for k, pts in enumerate(frames))

@@ -9,7 +9,7 @@ fitted: log10 k_i, κ, μ and e. The rollout then continues over the future fram
 
 What it answers: how well the model class reproduces and predicts a sequence when rendering,
 the static fit and v0 are perfect. The future error is scored against the same physics-free
-continuations as the pipeline's baseline (`sgdr.recon.baseline`), here of the *true* tracks of
+continuations as the pipeline's baseline (`sgdr.evaluate.baselines`), here of the *true* tracks of
 the last two fit frames. If the oracle itself is not far ahead of that baseline, no image-based
 reconstruction with this model will be: the limit is the model, not the pipeline.
 """
@@ -22,9 +22,9 @@ import drjit as dr
 import numpy as np
 
 from sgdr.arrays import array3_to_points, points_to_array3, scalar, to_numpy
-from sgdr.metrics.geometry import chamfer_distance
-from sgdr.recon.baseline import BASELINES, ISSUE_BASELINES, physics_free_predictions
-from sgdr.recon.common import raised_ground
+from sgdr.evaluate.baselines import BASELINES, ISSUE_BASELINES, physics_free_predictions
+from sgdr.evaluate.geometry import chamfer_distance
+from sgdr.identify.common import raised_ground
 
 
 @dataclass
@@ -55,15 +55,23 @@ class OracleResult:
             "baseline_future_cd": base[best],
             "baseline_variant": best,
             "baseline_future_cd_by_variant": base,
-            "baseline_future_track_error_by_variant": {n: float(np.mean(v)) for n, v in self.baseline_track_error.items()},
+            "baseline_future_track_error_by_variant": {
+                n: float(np.mean(v)) for n, v in self.baseline_track_error.items()
+            },
             "log10_k_mean": float(np.mean(self.values["log10_k"])),
             "log10_k_std": float(np.std(self.values["log10_k"])),
             "kappa": float(self.values["kappa"]),
             "friction": float(self.values["friction"]),
             "restitution": float(self.values["restitution"]),
             "final_loss": float(self.losses[-1]) if self.losses else float("nan"),
-            **({"ensemble_future_track_error": self.ensemble["future_track_error"],
-                "ensemble_members": len(self.ensemble["offsets"])} if self.ensemble else {}),
+            **(
+                {
+                    "ensemble_future_track_error": self.ensemble["future_track_error"],
+                    "ensemble_members": len(self.ensemble["offsets"]),
+                }
+                if self.ensemble
+                else {}
+            ),
         }
 
 
@@ -78,8 +86,20 @@ def tracked_anchor_index(particles0: np.ndarray, n_anchors: int, seed: int) -> n
     return np.asarray(index, dtype=np.int64)
 
 
-def fit_tracks(tracks: np.ndarray, ground, gravity, v0, fps: float, n_fit: int, physics_cfg,
-               n_k: int, iterations: int, recon_cfg, log10_k_init: float, progress: bool = False):
+def fit_tracks(
+    tracks: np.ndarray,
+    ground,
+    gravity,
+    v0,
+    fps: float,
+    n_fit: int,
+    physics_cfg,
+    n_k: int,
+    iterations: int,
+    recon_cfg,
+    log10_k_init: float,
+    progress: bool = False,
+):
     """Fit log10 k_i, κ, μ, e to anchor tracks and roll the result out over every frame.
 
     tracks [T, N_A, 3] world, scene units (frame 0 = rest shape); ground: `Ground`; gravity,
@@ -87,9 +107,9 @@ def fit_tracks(tracks: np.ndarray, ground, gravity, v0, fps: float, n_fit: int, 
     Returns (values, losses [iterations], simulated anchors [T, N_A, 3]).
     """
     from sgdr.backend import ad
+    from sgdr.identify.adam import make_adam
+    from sgdr.identify.dynamics import clamp_to_ranges
     from sgdr.physics import PhysParams, SimState, build_spring_model, rollout
-    from sgdr.recon.dynamics import clamp_to_ranges
-    from sgdr.recon.optim import make_adam
 
     t = ad()
     n_frames, n_a = tracks.shape[0], tracks.shape[1]
@@ -97,18 +117,21 @@ def fit_tracks(tracks: np.ndarray, ground, gravity, v0, fps: float, n_fit: int, 
         raise ValueError(f"oracle: n_fit={n_fit} must be in [2, {n_frames}] (frames of the tracks)")
     model = build_spring_model(tracks[0], int(n_k), physics_cfg)
     base = PhysParams.init(model, physics_cfg, v0=tuple(map(float, v0)), gravity=tuple(map(float, gravity)))
-    opt = make_adam({
-        "log10_k": (t.Float(np.full(n_a, float(log10_k_init), np.float32)), recon_cfg.lr_log10_k),
-        "kappa": (t.Float(float(physics_cfg.kappa_init)), recon_cfg.lr_kappa),
-        "friction": (t.Float(float(physics_cfg.friction_init)), recon_cfg.lr_friction),
-        "restitution": (t.Float(float(physics_cfg.restitution_init)), recon_cfg.lr_restitution),
-    })
+    opt = make_adam(
+        {
+            "log10_k": (t.Float(np.full(n_a, float(log10_k_init), np.float32)), recon_cfg.lr_log10_k),
+            "kappa": (t.Float(float(physics_cfg.kappa_init)), recon_cfg.lr_kappa),
+            "friction": (t.Float(float(physics_cfg.friction_init)), recon_cfg.lr_friction),
+            "restitution": (t.Float(float(physics_cfg.restitution_init)), recon_cfg.lr_restitution),
+        }
+    )
     targets = [points_to_array3(tracks[f]) for f in range(n_frames)]
     dt_frame = 1.0 / float(fps)
 
     def params():
-        return replace(base, log10_k=opt["log10_k"], kappa=opt["kappa"], friction=opt["friction"],
-                       restitution=opt["restitution"])
+        return replace(
+            base, log10_k=opt["log10_k"], kappa=opt["kappa"], friction=opt["friction"], restitution=opt["restitution"]
+        )
 
     steps = range(int(iterations))
     if progress:
@@ -118,7 +141,9 @@ def fit_tracks(tracks: np.ndarray, ground, gravity, v0, fps: float, n_fit: int, 
     losses = []
     for _ in steps:
         p = params()
-        states = rollout(model, p, SimState.at_rest(model, p.v0), ground, n_fit, dt_frame, physics_cfg, grad_mode="full")
+        states = rollout(
+            model, p, SimState.at_rest(model, p.v0), ground, n_fit, dt_frame, physics_cfg, grad_mode="full"
+        )
         loss = 0.0
         for f in range(1, n_fit):
             loss = loss + dr.mean(dr.squared_norm(states[f].x - targets[f]))
@@ -150,15 +175,26 @@ def _rollout_points(model, params, ground, n_frames: int, dt_frame: float, cfg) 
         return np.stack([array3_to_points(s.x) for s in states])
 
 
-def offset_scan(tracks: np.ndarray, ground, gravity, v0, fps: float, n_fit: int, physics_cfg, n_k: int,
-                values: dict, offsets, ensemble_tol: float = 1.25) -> tuple:
+def offset_scan(
+    tracks: np.ndarray,
+    ground,
+    gravity,
+    v0,
+    fps: float,
+    n_fit: int,
+    physics_cfg,
+    n_k: int,
+    values: dict,
+    offsets,
+    ensemble_tol: float = 1.25,
+) -> tuple:
     """Roll the identified model out with its whole log10 k field shifted by each offset: how
     much the fit frames pin down the future. Returns (rows, ensemble): rows [{"offset",
     "fit_track_error", "future_track_error", "final_centre" [3]}]; ensemble: the mean rollout
     of the offsets whose fit error is within `ensemble_tol` x the best, scored the same way
     ({"offsets", "fit_track_error", "future_track_error", "spread_last"}; {} without offsets)."""
     from sgdr.physics import build_spring_model
-    from sgdr.recon.predict import physical_params
+    from sgdr.pipeline.predict import physical_params
 
     offsets = [float(o) for o in offsets]
     if not offsets:
@@ -167,19 +203,30 @@ def offset_scan(tracks: np.ndarray, ground, gravity, v0, fps: float, n_fit: int,
     rows, runs = [], []
     for offset in offsets:
         shifted = {**values, "log10_k": np.asarray(values["log10_k"]) + offset, "v0": v0, "gravity": gravity}
-        sim = _rollout_points(model, physical_params(model, physics_cfg, shifted), ground, tracks.shape[0],
-                              1.0 / float(fps), physics_cfg)
+        sim = _rollout_points(
+            model, physical_params(model, physics_cfg, shifted), ground, tracks.shape[0], 1.0 / float(fps), physics_cfg
+        )
         error = np.linalg.norm(sim - tracks, axis=2).mean(axis=1)
-        rows.append({"offset": offset, "fit_track_error": float(error[1:n_fit].mean()),
-                     "future_track_error": float(error[n_fit:].mean()), "final_centre": sim[-1].mean(axis=0).tolist()})
+        rows.append(
+            {
+                "offset": offset,
+                "fit_track_error": float(error[1:n_fit].mean()),
+                "future_track_error": float(error[n_fit:].mean()),
+                "final_centre": sim[-1].mean(axis=0).tolist(),
+            }
+        )
         runs.append(sim)
     fit = np.array([r["fit_track_error"] for r in rows])
     keep = np.flatnonzero(fit <= float(ensemble_tol) * fit.min())
     mean = np.mean([runs[i] for i in keep], axis=0)
     error = np.linalg.norm(mean - tracks, axis=2).mean(axis=1)
     spread = np.mean([np.linalg.norm(runs[i][-1] - mean[-1], axis=1).mean() for i in keep])
-    ensemble = {"offsets": [offsets[i] for i in keep], "fit_track_error": float(error[1:n_fit].mean()),
-                "future_track_error": float(error[n_fit:].mean()), "spread_last": float(spread)}
+    ensemble = {
+        "offsets": [offsets[i] for i in keep],
+        "fit_track_error": float(error[1:n_fit].mean()),
+        "future_track_error": float(error[n_fit:].mean()),
+        "spread_last": float(spread),
+    }
     return rows, ensemble
 
 
@@ -190,20 +237,31 @@ def score_tracks(simulated: np.ndarray, tracks: np.ndarray, n_fit: int, fps: flo
     n_frames = tracks.shape[0]
     error = np.linalg.norm(simulated - tracks, axis=2).mean(axis=1)
     cd = np.array([chamfer_distance(simulated[f], tracks[f]) for f in range(n_frames)])
-    future = physics_free_predictions(tracks[n_fit - 2], tracks[n_fit - 1], n_frames - n_fit, 1.0 / float(fps),
-                                      np.asarray(gravity, float), ground.point, ground.normal)
+    future = physics_free_predictions(
+        tracks[n_fit - 2],
+        tracks[n_fit - 1],
+        n_frames - n_fit,
+        1.0 / float(fps),
+        np.asarray(gravity, float),
+        ground.point,
+        ground.normal,
+    )
     baseline_cd, baseline_error = {}, {}
     for name in BASELINES:
         preds = future[name]
         baseline_cd[name] = np.array([chamfer_distance(preds[k], tracks[n_fit + k]) for k in range(len(preds))])
-        baseline_error[name] = np.array([np.linalg.norm(preds[k] - tracks[n_fit + k], axis=1).mean() for k in range(len(preds))])
+        baseline_error[name] = np.array(
+            [np.linalg.norm(preds[k] - tracks[n_fit + k], axis=1).mean() for k in range(len(preds))]
+        )
     return error, cd, baseline_cd, baseline_error
 
 
-def oracle_study(seq, n_anchors: int, n_k: int, physics_cfg, recon_cfg, seed: int = 0,
-                 progress: bool = False) -> OracleResult:
+def oracle_study(
+    seq, n_anchors: int, n_k: int, physics_cfg, recon_cfg, oracle_cfg, seed: int = 0, progress: bool = False
+) -> OracleResult:
     """Fit the model to the sequence's ground-truth particle tracks (gt/particles_*.npy and
-    gt/params.json's v0, MPM cell) and score fit and future. `seq`: a `Sequence` with gt."""
+    gt/params.json's v0, MPM cell) and score fit and future. `seq`: a `Sequence` with gt;
+    `recon_cfg`: the dynamic stage's learning rates and clamps; `oracle_cfg`: `OracleConfig`."""
     gt = seq.gt_params()
     if gt is None:
         raise ValueError(f"{seq.root}: the oracle needs ground truth (gt/particles_*.npy, gt/params.json)")
@@ -212,21 +270,52 @@ def oracle_study(seq, n_anchors: int, n_k: int, physics_cfg, recon_cfg, seed: in
     particles = [seq.gt_particles(f) for f in range(seq.n_frames)]
     index = tracked_anchor_index(particles[0], n_anchors, seed)
     tracks = np.stack([p[index] for p in particles]).astype(np.float64)  # [T, N_A, 3]
-    oracle_cfg = recon_cfg.oracle
     margin = float(oracle_cfg.contact_margin)
     if margin < 0:  # the MPM collider acts on grid nodes up to half a cell above the plane
         margin = 0.5 * float(gt.get("mpm", {}).get("dx", 0.0))
     ground = raised_ground(seq, margin)
     values, losses, simulated = fit_tracks(
-        tracks, ground, seq.gravity, gt["v0"], seq.fps, seq.n_fit, physics_cfg, n_k,
-        int(oracle_cfg.iterations), recon_cfg, float(oracle_cfg.log10_k_init), progress=progress,
+        tracks,
+        ground,
+        seq.gravity,
+        gt["v0"],
+        seq.fps,
+        seq.n_fit,
+        physics_cfg,
+        n_k,
+        int(oracle_cfg.iterations),
+        recon_cfg,
+        float(oracle_cfg.log10_k_init),
+        progress=progress,
     )
     error, cd, baseline_cd, baseline_error = score_tracks(simulated, tracks, seq.n_fit, seq.fps, seq.gravity, ground)
-    scan, ensemble = offset_scan(tracks, ground, seq.gravity, gt["v0"], seq.fps, seq.n_fit, physics_cfg, n_k, values,
-                                 oracle_cfg.k_offsets, oracle_cfg.ensemble_tol)
-    return OracleResult(values=values, losses=losses, track_error=error, cd=cd, baseline_cd=baseline_cd,
-                        baseline_track_error=baseline_error, anchor_index=index, n_fit=int(seq.n_fit),
-                        simulated=simulated, tracks=tracks, scan=scan, ensemble=ensemble)
+    scan, ensemble = offset_scan(
+        tracks,
+        ground,
+        seq.gravity,
+        gt["v0"],
+        seq.fps,
+        seq.n_fit,
+        physics_cfg,
+        n_k,
+        values,
+        oracle_cfg.k_offsets,
+        oracle_cfg.ensemble_tol,
+    )
+    return OracleResult(
+        values=values,
+        losses=losses,
+        track_error=error,
+        cd=cd,
+        baseline_cd=baseline_cd,
+        baseline_track_error=baseline_error,
+        anchor_index=index,
+        n_fit=int(seq.n_fit),
+        simulated=simulated,
+        tracks=tracks,
+        scan=scan,
+        ensemble=ensemble,
+    )
 
 
 def plot_oracle(result: OracleResult, path, title: str = "") -> None:

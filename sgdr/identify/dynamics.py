@@ -58,9 +58,9 @@ import drjit as dr
 import numpy as np
 
 from sgdr.arrays import scalar, to_numpy
-from sgdr.recon.common import posed
-from sgdr.recon.config import ReconConfig
-from sgdr.recon.optim import adam_from_numpy, adam_to_numpy, make_adam
+from sgdr.identify.adam import adam_from_numpy, adam_to_numpy, make_adam
+from sgdr.identify.common import posed
+from sgdr.pipeline.config import ReconConfig
 from sgdr.registry import Registry
 
 log = logging.getLogger(__name__)
@@ -111,14 +111,16 @@ def _with_opt(params, opt):
     return replace(params, **{k: opt[k] for k in opt.keys()})
 
 
-def rollout_loss(model, params, binding, gaussians, v0, ground, targets, cameras, dt, n_t, physics_cfg, render_cfg, lam) -> float:
+def rollout_loss(
+    model, params, binding, gaussians, v0, ground, targets, cameras, dt, n_t, physics_cfg, render_cfg, lam
+) -> float:
     """Forward-only mean loss over fit frames 1..n_fit-1 and all views of a rollout from rest.
 
     targets: [n_fit] lists of TensorXf [H, W, 3] per view; v0 [3]; dt seconds per frame.
     """
+    from sgdr.identify.common import render
+    from sgdr.loss import image_loss
     from sgdr.physics import SimState, rollout
-    from sgdr.recon.common import render
-    from sgdr.render.losses import image_loss
 
     with dr.suspend_grad():
         state0 = SimState.at_rest(model, v0)
@@ -134,8 +136,8 @@ def rollout_loss(model, params, binding, gaussians, v0, ground, targets, cameras
 
 def _frame_loss(gaussians, binding, x, targets_f, cameras, views, render_cfg, lam):
     """Mean image loss of the bound Gaussians at anchor positions x (Array3f [N_A]) over `views`."""
-    from sgdr.recon.common import render
-    from sgdr.render.losses import image_loss
+    from sgdr.identify.common import render
+    from sgdr.loss import image_loss
 
     g = posed(gaussians, binding.apply(x))
     loss = 0.0
@@ -215,8 +217,17 @@ def pass_full(p: _Pass, opt, rng, n_t: int) -> tuple[list[float], int]:
     from sgdr.physics import SimState, rollout
 
     params = _with_opt(p.base, opt)
-    states = rollout(p.model, params, SimState.at_rest(p.model, p.v0), p.ground, len(p.targets), p.dt, p.physics_cfg,
-                     grad_mode="full", n_substeps=n_t)
+    states = rollout(
+        p.model,
+        params,
+        SimState.at_rest(p.model, p.v0),
+        p.ground,
+        len(p.targets),
+        p.dt,
+        p.physics_cfg,
+        grad_mode="full",
+        n_substeps=n_t,
+    )
     frame_losses: list[float] = []
     loss = 0.0
     for f in range(1, len(p.targets)):
@@ -280,15 +291,43 @@ def fit_dynamics(
         # contacts shift in time), its local gradient does not point to the best basin
         for value in cfg.log10_k_grid:
             trial = replace(base, log10_k=dr.full(type(base.log10_k), float(value), model.n_anchors))
-            k_grid[f"{float(value):g}"] = rollout_loss(model, trial, binding, gaussians.detach(), v0, ground, targets, cameras, dt, n_t0, physics_cfg, render_cfg, lam)
+            k_grid[f"{float(value):g}"] = rollout_loss(
+                model,
+                trial,
+                binding,
+                gaussians.detach(),
+                v0,
+                ground,
+                targets,
+                cameras,
+                dt,
+                n_t0,
+                physics_cfg,
+                render_cfg,
+                lam,
+            )
         best = min(k_grid, key=k_grid.get)
         log.info("dynamics: uniform log10 k grid %s -> start at %s", k_grid, best)
         base = replace(base, log10_k=dr.full(type(base.log10_k), float(best), model.n_anchors))
         dr.make_opaque(base.log10_k)
     opt = make_adam({name: (getattr(base, name), _lr(cfg, name)) for name in learnable_names(physics_cfg)})
     g = gaussians.detach()
-    inputs = _Pass(model, binding, g, base, tuple(map(float, v0)), ground, targets, cameras, dt, physics_cfg, cfg,
-                   render_cfg, lam, per_frame)
+    inputs = _Pass(
+        model,
+        binding,
+        g,
+        base,
+        tuple(map(float, v0)),
+        ground,
+        targets,
+        cameras,
+        dt,
+        physics_cfg,
+        cfg,
+        render_cfg,
+        lam,
+        per_frame,
+    )
 
     # ---- resume or start
     start, pass_losses, n_t_floor = 0, [], 0
@@ -302,7 +341,9 @@ def fit_dynamics(
     elif k_grid:
         eval_initial = min(k_grid.values())
     else:
-        eval_initial = rollout_loss(model, base, binding, g, v0, ground, targets, cameras, dt, n_t0, physics_cfg, render_cfg, lam)
+        eval_initial = rollout_loss(
+            model, base, binding, g, v0, ground, targets, cameras, dt, n_t0, physics_cfg, render_cfg, lam
+        )
 
     passes = range(start, int(cfg.iterations))
     if progress:
@@ -333,7 +374,9 @@ def fit_dynamics(
             )
 
     final = _with_opt(base, opt).detach()
-    eval_final = rollout_loss(model, final, binding, g, v0, ground, targets, cameras, dt, n_t, physics_cfg, render_cfg, lam)
+    eval_final = rollout_loss(
+        model, final, binding, g, v0, ground, targets, cameras, dt, n_t, physics_cfg, render_cfg, lam
+    )
     return DynamicsResult(
         log10_k=to_numpy(final.log10_k).reshape(-1),
         kappa=scalar(final.kappa),

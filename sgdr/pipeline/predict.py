@@ -15,7 +15,7 @@ import drjit as dr
 import numpy as np
 
 from sgdr.arrays import array3_to_points
-from sgdr.recon.common import posed, render_rgb_numpy
+from sgdr.identify.common import posed, render_rgb_numpy
 
 
 @dataclass
@@ -54,7 +54,21 @@ def physical_params(model, physics_cfg, values: dict):
     return p
 
 
-def predict(model, params, binding, gaussians, ground, n_frames: int, fps: float, n_substeps: int, physics_cfg, cameras: list, render_cfg, render_views: bool = True, progress: bool = False) -> Prediction:
+def predict(
+    model,
+    params,
+    binding,
+    gaussians,
+    ground,
+    n_frames: int,
+    fps: float,
+    n_substeps: int,
+    physics_cfg,
+    cameras: list,
+    render_cfg,
+    render_views: bool = True,
+    progress: bool = False,
+) -> Prediction:
     """Forward rollout of `n_frames` frames from rest with `params` (its v0), bound and rendered.
 
     Returns anchors [T, N_A, 3], centres [T, M, 3] and, if render_views, images
@@ -64,7 +78,16 @@ def predict(model, params, binding, gaussians, ground, n_frames: int, fps: float
 
     with dr.suspend_grad():
         p = params.detach()
-        states = rollout(model, p, SimState.at_rest(model, p.v0), ground, int(n_frames), 1.0 / float(fps), physics_cfg, n_substeps=int(n_substeps))
+        states = rollout(
+            model,
+            p,
+            SimState.at_rest(model, p.v0),
+            ground,
+            int(n_frames),
+            1.0 / float(fps),
+            physics_cfg,
+            n_substeps=int(n_substeps),
+        )
         anchors, centres, images = [], [], []
         frames = range(len(states))
         if progress:

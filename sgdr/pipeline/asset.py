@@ -57,15 +57,28 @@ class Asset:
 
     def build(self):
         """(SpringModel, IDWBinding) rebuilt from the rest anchors and centres."""
-        from sgdr.anchors import IDWBinding
         from sgdr.physics import build_spring_model
+        from sgdr.skin import IDWBinding
 
         model = build_spring_model(self.anchors, self.anchor_cfg.n_k, self.physics)
-        binding = IDWBinding.build(self.rest_centres, self.anchors, self.anchor_cfg.n_b, self.anchor_cfg.p_b, self.anchor_cfg.binding)
+        binding = IDWBinding.build(
+            self.rest_centres, self.anchors, self.anchor_cfg.n_b, self.anchor_cfg.p_b, self.anchor_cfg.binding
+        )
         return model, binding
 
 
-def save_asset(out, gaussians, anchors, values: dict, physics_cfg, anchor_cfg, seq, n_substeps: int, rest_centres, ground_point=None) -> Path:
+def save_asset(
+    out,
+    gaussians,
+    anchors,
+    values: dict,
+    physics_cfg,
+    anchor_cfg,
+    seq,
+    n_substeps: int,
+    rest_centres,
+    ground_point=None,
+) -> Path:
     """ground_point [3]: the anchors' contact plane as simulated (the sequence's ground raised by
     the pipeline's contact margin); None = the sequence's ground point."""
     from sgdr.gaussians.ply import save_ply
@@ -79,7 +92,10 @@ def save_asset(out, gaussians, anchors, values: dict, physics_cfg, anchor_cfg, s
     meta = {
         "physics": _plain(physics_cfg),
         "anchors": _plain(anchor_cfg),
-        "ground": {"point": np.asarray(seq.ground_point if ground_point is None else ground_point, float).tolist(), "normal": np.asarray(seq.ground_normal, float).tolist()},
+        "ground": {
+            "point": np.asarray(seq.ground_point if ground_point is None else ground_point, float).tolist(),
+            "normal": np.asarray(seq.ground_normal, float).tolist(),
+        },
         "fps": float(seq.fps),
         "n_frames": int(seq.n_frames),
         "n_fit": int(seq.n_fit),
@@ -109,7 +125,9 @@ def load_asset(path) -> Asset:
     anchors = np.load(root / "anchors.npy", allow_pickle=False)
     rest = np.load(root / "rest_centres.npy", allow_pickle=False)
     if values["log10_k"].shape != (anchors.shape[0],):
-        raise ValueError(f"{root / 'params.npz'}: log10_k has {values['log10_k'].shape}, expected ({anchors.shape[0]},)")
+        raise ValueError(
+            f"{root / 'params.npz'}: log10_k has {values['log10_k'].shape}, expected ({anchors.shape[0]},)"
+        )
     return Asset(
         root=root,
         gaussians=load_ply(root / "gaussians.ply"),
@@ -183,7 +201,7 @@ def simulate_asset(asset: Asset, sim_cfg, render_cfg, progress: bool = False):
     asset reached in training; an unstable rollout says so.
     """
     from sgdr.physics import Ground, SimulationUnstable
-    from sgdr.recon.predict import physical_params
+    from sgdr.pipeline.predict import physical_params
 
     render_with = SIMULATE_CAMERAS.get_named(sim_cfg.cameras)
     model, binding = asset.build()
@@ -209,21 +227,47 @@ SIMULATE_CAMERAS = Registry("simulate camera set", "recon.simulate.cameras", Val
 @SIMULATE_CAMERAS.register("sequence")
 def simulate_sequence_cameras(asset, model, params, binding, ground, n_frames, n_t, render_cfg, progress):
     """Every sequence camera renders every frame."""
-    from sgdr.recon.predict import predict
+    from sgdr.pipeline.predict import predict
 
-    return predict(model, params, binding, asset.gaussians, ground, n_frames, asset.fps, n_t, asset.physics,
-                   asset.cameras, render_cfg, True, progress), asset.cameras
+    return predict(
+        model,
+        params,
+        binding,
+        asset.gaussians,
+        ground,
+        n_frames,
+        asset.fps,
+        n_t,
+        asset.physics,
+        asset.cameras,
+        render_cfg,
+        True,
+        progress,
+    ), asset.cameras
 
 
 @SIMULATE_CAMERAS.register("orbit")
 def simulate_orbit_cameras(asset, model, params, binding, ground, n_frames, n_t, render_cfg, progress):
     """Frame t from orbit camera t: one turn around the object over the clip."""
     from sgdr.arrays import points_to_array3
-    from sgdr.recon.common import posed, render_rgb_numpy
-    from sgdr.recon.predict import Prediction, predict
+    from sgdr.identify.common import posed, render_rgb_numpy
+    from sgdr.pipeline.predict import Prediction, predict
 
-    traj = predict(model, params, binding, asset.gaussians, ground, n_frames, asset.fps, n_t, asset.physics, [],
-                   render_cfg, False, progress)
+    traj = predict(
+        model,
+        params,
+        binding,
+        asset.gaussians,
+        ground,
+        n_frames,
+        asset.fps,
+        n_t,
+        asset.physics,
+        [],
+        render_cfg,
+        False,
+        progress,
+    )
     cams = orbit_cameras(asset, n_frames)
     images = []
     for f in range(n_frames):

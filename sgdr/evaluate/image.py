@@ -2,7 +2,7 @@
 
 Images are `np.ndarray [H, W, 3]` (an alpha channel, if given as [H, W, 4], is dropped: the
 benchmark renders on black, so RGB already carries the silhouette). The differentiable D-SSIM
-used as a training loss lives in `sgdr.render.losses`; evaluation uses scikit-image's
+used as a training loss lives in `sgdr.loss`; evaluation uses scikit-image's
 reference SSIM so our scores are comparable with other codebases.
 """
 

@@ -1,0 +1,329 @@
+"""What each pipeline stage computes and how its outputs are read back: one `produce` and one
+`load` per stage, over a `RunContext` that holds the sequence, the config and the values of the
+stages already run. The order, keys and file layout of the stages are the table in
+`sgdr.pipeline.run`; the maths lives in the stage packages (`sgdr.static_fit`, `sgdr.anchors`,
+`sgdr.skin`, `sgdr.identify`, `sgdr.physics`, `sgdr.evaluate`).
+
+`produce(ctx, out, ckpt)` writes the stage's files into `out` (a `Checkpoint` for stages that
+resume mid-way); `load(ctx, out)` reads them back, validating shapes, and returns the value
+later stages see as `ctx.values[<stage>]`.
+"""
+
+from __future__ import annotations
+
+import json
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from sgdr.arrays import points_to_array3
+from sgdr.gaussians.ply import load_ply, save_ply
+from sgdr.identify.common import frame_targets, raised_ground
+
+
+def contact_margin(recon_cfg, static_gaussians) -> float:
+    """Height (scene units) of the anchors' contact plane above the sequence's ground.
+
+    The anchors are averages of Gaussian centres, i.e. interior points; the rendered surface
+    extends about one Gaussian scale beyond the outermost centres. Letting the anchors touch
+    the true ground sinks the visible object into it (measured on the small torus: by ~0.015,
+    the lowest anchor 0.015 above the lowest ground-truth particle at frame 0). recon.contact_margin
+    >= 0 is used as given; < 0 takes the median scale of the static fit's Gaussians.
+    """
+    if float(recon_cfg.contact_margin) >= 0.0:
+        return float(recon_cfg.contact_margin)
+    scales = np.exp(np.asarray(static_gaussians.to_numpy()["log_scales"], float))
+    return float(np.median(scales))
+
+
+class RunContext:
+    """One run: the sequence, its cameras, the config, the tracker, and `values[stage]` of every
+    stage run so far. Quantities derived from several stages (the spring model, the skinning,
+    the contact plane, the identified parameters) are computed once, on first use."""
+
+    def __init__(self, cfg, seq, tracker, progress: bool):
+        self.cfg, self.seq, self.tracker, self.progress = cfg, seq, tracker, progress
+        self.cameras = list(seq.cameras)
+        self.values: dict[str, object] = {}
+
+    @cached_property
+    def static_centres(self) -> np.ndarray:  # [M, 3] world: the static fit's Gaussian centres
+        return self.values["static"].to_numpy()["means"]
+
+    @cached_property
+    def model(self):  # SpringModel from the rest anchors (kNN springs, Eqs. 5-7)
+        from sgdr.physics import build_spring_model
+
+        return build_spring_model(self.values["anchors"], self.cfg.anchors.n_k, self.cfg.physics)
+
+    @cached_property
+    def binding(self):  # the skinning of the static centres to the anchors (Eq. 14)
+        from sgdr.skin import IDWBinding
+
+        a = self.cfg.anchors
+        return IDWBinding.build(self.static_centres, self.values["anchors"], a.n_b, a.p_b, a.binding)
+
+    @cached_property
+    def ground(self):  # the anchors' contact plane: the sequence's ground raised by the margin
+        return raised_ground(self.seq, contact_margin(self.cfg.recon, self.values["static"]))
+
+    @property
+    def gaussians(self):  # refined Gaussians (appearance at the bound positions)
+        return self.values["refine"][0]
+
+    @property
+    def v0(self) -> np.ndarray:  # [3] identified initial velocity
+        return np.asarray(self.values["velocity"]["v0"], dtype=np.float64)
+
+    @property
+    def identified(self) -> dict:  # physical values of the asset (sgdr.pipeline.predict.physical_params)
+        dyn = self.values["dynamics"]
+        return {
+            **{k: dyn[k] for k in ("log10_k", "kappa", "friction", "restitution")},
+            "v0": self.v0,
+            "gravity": self.seq.gravity,
+        }
+
+
+# ---------------------------------------------------------------------- 1. static fit (frame 0)
+def static_produce(ctx: RunContext, out: Path, ckpt) -> None:
+    from sgdr.static_fit.fit import fit_static
+
+    images = [ctx.seq.image(v, 0) for v in range(len(ctx.cameras))]
+    g = fit_static(images, ctx.cameras, ctx.cfg.static_fit, ctx.cfg.render, None, ctx.cfg.seed, progress=ctx.progress)
+    save_ply(out / "gaussians.ply", g)
+
+
+def static_load(ctx: RunContext, out: Path):
+    return load_ply(out / "gaussians.ply")
+
+
+# ---------------------------------------------------------------------- 2. anchors
+def anchors_produce(ctx: RunContext, out: Path, ckpt) -> None:
+    from sgdr.anchors import sample_anchors
+
+    a = ctx.cfg.anchors
+    points = sample_anchors(ctx.static_centres, a.n_anchors, a.sampler, a.voxel_size, ctx.cfg.seed)
+    np.save(out / "anchors.npy", np.asarray(points, dtype=np.float64))
+
+
+def anchors_load(ctx: RunContext, out: Path) -> np.ndarray:
+    a = np.load(out / "anchors.npy", allow_pickle=False)
+    if a.ndim != 2 or a.shape[1] != 3 or not np.all(np.isfinite(a)):
+        raise ValueError(f"anchors.npy has shape {a.shape} or non-finite values")
+    return a
+
+
+# ---------------------------------------------------------------------- 3. appearance at the bound positions
+def refine_produce(ctx: RunContext, out: Path, ckpt) -> None:
+    from sgdr.identify.appearance import refine_appearance
+
+    bound_means = ctx.binding.apply(points_to_array3(ctx.values["anchors"]))
+    res = refine_appearance(
+        ctx.values["static"],
+        bound_means,
+        frame_targets(ctx.seq, 0),
+        ctx.cameras,
+        ctx.cfg.recon,
+        ctx.cfg.render,
+        ctx.cfg.seed,
+        ctx.progress,
+    )
+    save_ply(out / "gaussians.ply", res.gaussians)
+    (out / "losses.json").write_text(json.dumps(res.losses))
+
+
+def refine_load(ctx: RunContext, out: Path):
+    return load_ply(out / "gaussians.ply"), json.loads((out / "losses.json").read_text())
+
+
+# ---------------------------------------------------------------------- 4. v0 from the free-fall frames
+def velocity_produce(ctx: RunContext, out: Path, ckpt) -> None:
+    from sgdr.identify.velocity import fit_initial_velocity
+
+    seq = ctx.seq
+    targets = {f: frame_targets(seq, f) for f in range(1, min(int(seq.hit_frame), int(seq.n_fit)))}
+    res = fit_initial_velocity(
+        ctx.gaussians,
+        targets,
+        ctx.cameras,
+        seq.fps,
+        seq.gravity,
+        ctx.cfg.recon,
+        ctx.cfg.render,
+        ctx.cfg.seed,
+        ctx.progress,
+    )
+    (out / "velocity.json").write_text(
+        json.dumps({"v0": res.v0.tolist(), "losses": res.losses, "frames": res.frames, "note": res.note})
+    )
+
+
+def velocity_load(ctx: RunContext, out: Path) -> dict:
+    d = json.loads((out / "velocity.json").read_text())
+    if len(d["v0"]) != 3:
+        raise ValueError("velocity.json: v0 must have 3 entries")
+    return d
+
+
+# ---------------------------------------------------------------------- 5. dynamic reconstruction
+def dynamics_produce(ctx: RunContext, out: Path, ckpt) -> None:
+    from sgdr.identify.dynamics import fit_dynamics
+
+    seq, cfg = ctx.seq, ctx.cfg
+    targets = [frame_targets(seq, f) for f in range(int(seq.n_fit))]
+    res = fit_dynamics(
+        ctx.model,
+        ctx.binding,
+        ctx.gaussians,
+        ctx.v0,
+        np.asarray(seq.gravity, float),
+        ctx.ground,
+        targets,
+        ctx.cameras,
+        seq.fps,
+        cfg.physics,
+        cfg.recon,
+        cfg.render,
+        cfg.seed,
+        ckpt=ckpt,
+        on_pass=lambda it, loss, n_t: ctx.tracker.log_metrics(
+            {"dynamic_pass_loss_live": loss, "n_substeps": n_t}, step=it
+        ),
+        progress=ctx.progress,
+    )
+    np.savez(out / "params.npz", log10_k=res.log10_k)
+    (out / "dynamics.json").write_text(
+        json.dumps(
+            {
+                "kappa": res.kappa,
+                "friction": res.friction,
+                "restitution": res.restitution,
+                "n_substeps": res.n_substeps,
+                "pass_losses": res.pass_losses,
+                "eval_loss_initial": res.eval_loss_initial,
+                "eval_loss_final": res.eval_loss_final,
+                "log10_k_grid_losses": res.k_grid,
+            }
+        )
+    )
+
+
+def dynamics_load(ctx: RunContext, out: Path) -> dict:
+    d = json.loads((out / "dynamics.json").read_text())
+    with np.load(out / "params.npz", allow_pickle=False) as z:
+        d["log10_k"] = z["log10_k"]
+    n = ctx.values["anchors"].shape[0]
+    if d["log10_k"].shape != (n,):
+        raise ValueError(f"params.npz: log10_k has shape {d['log10_k'].shape}, expected ({n},)")
+    return d
+
+
+# ---------------------------------------------------------------------- 6. prediction (fit frames from frame 0, then the future)
+def predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
+    from sgdr.pipeline.predict import physical_params, predict
+
+    cfg, seq = ctx.cfg, ctx.seq
+    params = physical_params(ctx.model, cfg.physics, ctx.identified)
+    pred = predict(
+        ctx.model,
+        params,
+        ctx.binding,
+        ctx.gaussians,
+        ctx.ground,
+        seq.n_frames,
+        seq.fps,
+        ctx.values["dynamics"]["n_substeps"],
+        cfg.physics,
+        ctx.cameras,
+        cfg.render,
+        True,
+        ctx.progress,
+    )
+    np.savez(out / "trajectory.npz", anchors=pred.anchors, centres=pred.centres)
+    np.save(out / "images.npy", pred.images)
+
+
+def predict_load(ctx: RunContext, out: Path):
+    from sgdr.pipeline.predict import Prediction
+
+    with np.load(out / "trajectory.npz", allow_pickle=False) as z:
+        a, c = z["anchors"], z["centres"]
+    imgs = np.load(out / "images.npy", allow_pickle=False)
+    n = ctx.seq.n_frames
+    if a.shape[0] != n or c.shape[0] != n or imgs.shape[:2] != (n, len(ctx.cameras)):
+        raise ValueError("predict outputs do not cover every frame and view of the sequence")
+    return Prediction(a, c, imgs)
+
+
+# ---------------------------------------------------------------------- 7. evaluation
+def evaluate_produce(ctx: RunContext, out: Path, ckpt) -> None:
+    from sgdr.evaluate.score import evaluate_prediction
+
+    r = ctx.cfg.recon
+    scores = evaluate_prediction(
+        ctx.values["predict"], ctx.seq, with_emd=r.eval_emd, seed=ctx.cfg.seed, workers=r.eval_workers
+    )
+    (out / "scores.json").write_text(json.dumps(scores, indent=1, default=float))
+
+
+def evaluate_load(ctx: RunContext, out: Path) -> dict:
+    return json.loads((out / "scores.json").read_text())
+
+
+# ---------------------------------------------------------------------- 8. report: videos, plots, per-frame PLYs
+def report_produce(ctx: RunContext, out: Path, ckpt) -> None:
+    from sgdr.pipeline import report
+
+    seq, pred, dyn = ctx.seq, ctx.values["predict"], ctx.values["dynamics"]
+    if ctx.cfg.recon.render_videos:
+        frames = [
+            report.side_by_side([seq.image(v, f) for v in range(len(ctx.cameras))], list(pred.images[f]))
+            for f in range(seq.n_frames)
+        ]
+        report.write_video(out / "side_by_side.mp4", frames, seq.fps)
+        report.write_video(out / "future.mp4", frames[seq.n_fit :], seq.fps)
+    curves = {
+        "refine": ctx.values["refine"][1],
+        "v0": ctx.values["velocity"]["losses"],
+        "dynamics (per pass)": dyn["pass_losses"],
+    }
+    report.plot_losses(out / "losses.png", {k: v for k, v in curves.items() if v})
+    report.plot_stiffness(out / "stiffness.png", ctx.values["anchors"], dyn["log10_k"])
+    if ctx.cfg.recon.write_plys:
+        colours = 1.0 / (1.0 + np.exp(-ctx.gaussians.to_numpy()["color_logits"]))
+        report.write_frame_plys(out / "ply", list(pred.centres), "centres", colours)
+        report.write_frame_plys(out / "ply", list(pred.anchors), "anchors")
+
+
+def report_load(ctx: RunContext, out: Path) -> list[str]:
+    return sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
+
+
+# ---------------------------------------------------------------------- 9. the simulatable asset
+def asset_produce(ctx: RunContext, out: Path, ckpt) -> None:
+    from sgdr.pipeline.asset import save_asset
+
+    save_asset(
+        out,
+        ctx.gaussians,
+        ctx.values["anchors"],
+        ctx.identified,
+        ctx.cfg.physics,
+        ctx.cfg.anchors,
+        ctx.seq,
+        ctx.values["dynamics"]["n_substeps"],
+        ctx.static_centres,
+        ground_point=ctx.ground.point,
+    )
+
+
+def asset_load(ctx: RunContext, out: Path):
+    from sgdr.pipeline.asset import load_asset
+
+    return load_asset(out)
+
+
+def asset_key(ctx: RunContext) -> dict:
+    return {"ground_point": ctx.ground.point.tolist()}

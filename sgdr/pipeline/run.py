@@ -1,0 +1,281 @@
+"""The reconstruction pipeline, stage by stage, from a multi-view sequence to a scored asset.
+
+    static fit -> anchors/springs/IDW -> refine (frame 0) -> v0 -> dynamics -> predict
+               -> evaluate -> report, asset
+
+The stages are the rows of `PIPELINE` (name, config sections, inputs, produce, load); what each
+computes is `sgdr.pipeline.flow`. Each stage runs through `StageRunner` in `<run_dir>/<stage>/`: a rerun skips stages whose
+outputs verify, `recon.force=true` redoes them, a damaged output is redone (see
+`sgdr.pipeline.stages`). Every stage key holds the whole config sections the stage reads
+(`stage_sections`), the digests of its inputs and the sequence's digest, so changing a
+setting redoes that stage and everything after it; a field is left out of a key only by the
+explicit lists below (`RECON_NEVER_IN_KEYS`, `RECON_STAGE_FIELDS`), so a forgotten field
+errs on the side of recomputing.
+The run folder also gets `config.yaml`, `metrics.json` and an MLflow run (`sgdr.tracking`).
+
+Stage outputs (all under the run folder):
+  static/gaussians.ply          3DGS PLY of the static fit (frame 0)
+  anchors/anchors.npy           [N_A, 3] rest anchors (springs and IDW are rebuilt from them)
+  refine/gaussians.ply          appearance refined at the IDW positions; losses.json
+  velocity/velocity.json        v0 [3], loss per step, frames used
+  dynamics/params.npz, dynamics.json   identified log10 k_i, κ, friction, restitution, n_t, losses
+  predict/trajectory.npz        anchors [T, N_A, 3], centres [T, M, 3]; images.npy [T, V, H, W, 3] uint8
+  evaluate/scores.json          fit/future CD, EMD, PSNR, SSIM, baseline (also metrics.json)
+  report/                       side_by_side.mp4, losses.png, stiffness.png, ply/
+  asset/                        what `experiments/simulate.py` loads (sgdr.pipeline.asset)
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+
+from sgdr.pipeline import flow
+from sgdr.pipeline.flow import RunContext
+from sgdr.pipeline.stages import StageResult, StageRunner, file_hash, key_hash
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One row of the pipeline: its name (= its folder in the run), the config sections it reads
+    (whole, in its key), the stages whose outputs it reads (their digests in its key), and its
+    `produce` / `load` (sgdr.pipeline.flow)."""
+
+    name: str
+    sections: tuple[str, ...]
+    needs: tuple[str, ...]
+    produce: Callable
+    load: Callable
+    seeded: bool = True  # cfg.seed in the key (the stage draws random numbers)
+    reads_sequence: bool = True  # the sequence's digest in the key (it reads images or ground truth)
+    extra_key: Callable | None = None  # more key entries, from the run context
+
+
+# The data flow, in order. A stage's key = its sections + seed + sequence digest + its needs'
+# digests (+ extra), so changing anything a stage reads redoes it and everything after it.
+PIPELINE: tuple[Stage, ...] = (
+    Stage("static", ("static_fit", "render"), (), flow.static_produce, flow.static_load),
+    Stage("anchors", ("anchors",), ("static",), flow.anchors_produce, flow.anchors_load, reads_sequence=False),
+    Stage("refine", ("recon", "anchors", "render"), ("static", "anchors"), flow.refine_produce, flow.refine_load),
+    Stage("velocity", ("recon", "render"), ("refine",), flow.velocity_produce, flow.velocity_load),
+    Stage(
+        "dynamics",
+        ("recon", "physics", "anchors", "render"),
+        ("refine", "velocity"),
+        flow.dynamics_produce,
+        flow.dynamics_load,
+    ),
+    Stage(
+        "predict",
+        ("physics", "anchors", "render"),
+        ("dynamics", "velocity"),
+        flow.predict_produce,
+        flow.predict_load,
+        seeded=False,
+        reads_sequence=False,
+    ),
+    Stage("evaluate", ("recon",), ("predict",), flow.evaluate_produce, flow.evaluate_load),
+    Stage("report", ("recon",), ("predict", "evaluate", "refine"), flow.report_produce, flow.report_load, seeded=False),
+    Stage(
+        "asset",
+        ("physics", "anchors"),
+        ("dynamics", "refine", "velocity"),
+        flow.asset_produce,
+        flow.asset_load,
+        seeded=False,
+        extra_key=flow.asset_key,
+    ),
+)
+STAGES = tuple(st.name for st in PIPELINE)
+
+
+@dataclass
+class RunOutputs:
+    run_dir: Path
+    metrics: dict  # what metrics.json holds
+    stages: dict[str, StageResult] = field(default_factory=dict)
+
+
+# ------------------------------------------------------------------------------ stage keys
+# recon fields that change no stage's outputs: where the run goes, whether to redo, how many
+# processes score the EMD (the scores do not depend on it), how often to checkpoint (a resume
+# is exact), and the settings of experiments/simulate.py.
+RECON_NEVER_IN_KEYS = ("output_dir", "run_name", "force", "eval_workers", "checkpoint_every", "simulate")
+# recon fields that only one stage reads: the other stages leave them out of their keys (a
+# stage after it sees them through its input digests). A recon field in none of these lists
+# is in the key of every stage that reads `recon`.
+RECON_STAGE_FIELDS = {
+    "refine": ("refine_iterations", "lr_scale", "lr_color", "lr_opacity", "refine_lambda_dssim"),
+    "velocity": ("v0_iterations", "lr_v0", "v0_lambda_dssim", "v0_views_per_step"),
+    "dynamics": (
+        "iterations",
+        "lambda_dssim",
+        "substep_growth",
+        "cameras_per_frame",
+        "lr_log10_k",
+        "lr_kappa",
+        "lr_friction",
+        "lr_restitution",
+        "mode",
+        "log10_k_grid",
+        "log10_k_min",
+        "log10_k_max",
+        "friction_max",
+        "contact_margin",
+    ),
+    "evaluate": ("eval_emd",),
+    "report": ("render_videos", "write_plys"),
+}
+
+
+def recon_section(cfg, stage: str) -> dict:
+    """The `recon` section as stage `stage` sees it for its key: every field except
+    `RECON_NEVER_IN_KEYS` and the fields other stages own (`RECON_STAGE_FIELDS`)."""
+    from sgdr.pipeline.stages import plain
+
+    others = {f for name, fields in RECON_STAGE_FIELDS.items() if name != stage for f in fields}
+    return {k: v for k, v in plain(cfg.recon).items() if k not in others and k not in RECON_NEVER_IN_KEYS}
+
+
+# The config sections each stage reads, whole, in its key (besides seeds and input digests).
+STAGE_SECTIONS = {st.name: st.sections for st in PIPELINE}
+
+
+def stage_sections(cfg, stage: str) -> dict:
+    """{section: its whole config} for the sections `stage` reads (`recon` via `recon_section`)."""
+    return {
+        name: recon_section(cfg, stage) if name == "recon" else getattr(cfg, name) for name in STAGE_SECTIONS[stage]
+    }
+
+
+# ------------------------------------------------------------------------------ locating
+DEFAULT_METHOD = "spring_gaus"  # conf/config.yaml's default method group
+
+
+def default_run_name(cfg) -> str:
+    """recon.run_name, or `<object>_<preset>_s<seed>` (`<object>_<preset>_<method>_s<seed>` for
+    a method other than the default, so that two methods never share a run folder)."""
+    method = "" if cfg.method == DEFAULT_METHOD else f"_{cfg.method}"
+    return cfg.recon.run_name or f"{cfg.synth.object}_{cfg.preset}{method}_s{cfg.seed}"
+
+
+def sequence_path(cfg) -> Path:
+    """`cfg.sequence`, or `<data_dir>/<synth.object>` when empty."""
+    return Path(cfg.sequence) if cfg.sequence else Path(cfg.data_dir) / cfg.synth.object
+
+
+def ensure_sequence(cfg, generate_if_missing: bool = True) -> Path:
+    """The sequence to reconstruct; generated with `cfg.synth` if missing and allowed.
+
+    An existing default-located sequence whose resolution or view count differs from the
+    preset's `synth` settings is refused (it was generated at another preset): pass
+    `sequence=<path>` to use it anyway, or delete it to regenerate.
+    """
+    from sgdr.data import load_sequence
+
+    path = sequence_path(cfg)
+    if not (path / "sequence.json").exists():
+        if cfg.sequence or not generate_if_missing:
+            raise FileNotFoundError(f"no sequence at {path} (sequence.json missing); run `make data` or set sequence=")
+        from sgdr.synth.generate import generate_sequence
+
+        log.info("generating %s at preset %s into %s", cfg.synth.object, cfg.preset, path)
+        return Path(generate_sequence(cfg.synth, path, seed=cfg.seed, progress=True))
+    if not cfg.sequence:
+        from sgdr.synth.generate import is_complete
+
+        if not is_complete(path, cfg.synth):
+            seq = load_sequence(path)
+            cam = seq.cameras[0]
+            raise ValueError(
+                f"{path} ({len(seq.cameras)} views at {cam.width}px, {seq.n_frames} frames) does not match preset "
+                f"{cfg.preset!r} (synth.n_views={cfg.synth.n_views}, synth.resolution={cfg.synth.resolution}, "
+                f"synth.n_frames={cfg.synth.n_frames}, synth.object={cfg.synth.object}): it was generated with other "
+                f"settings. Delete it to regenerate, or pass sequence={path} to use it as it is."
+            )
+    return path
+
+
+def sequence_digest(root: Path) -> str:
+    """Hash of every file of a sequence folder (names and contents)."""
+    root = Path(root)
+    return key_hash({str(p.relative_to(root)): file_hash(p) for p in sorted(root.rglob("*")) if p.is_file()})
+
+
+# ------------------------------------------------------------------------------ the run
+def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> RunOutputs:
+    """Reconstruct, predict, evaluate and report one sequence; returns the run's outputs.
+
+    cfg: the composed `sgdr.config.Config` (a dataclass instance: `OmegaConf.to_object`).
+    The backend must be initialised by the caller (`sgdr.backend.init`).
+    """
+    from sgdr.data import load_sequence
+    from sgdr.tracking import RunTracker
+
+    t_start = time.time()
+    seq_root = ensure_sequence(cfg)
+    t_sequence = time.time() - t_start  # generation when the sequence was missing
+    seq = load_sequence(seq_root)
+    name = default_run_name(cfg)
+    run_dir = Path(run_dir) if run_dir is not None else Path(cfg.recon.output_dir) / name
+    with RunTracker(run_dir, cfg, cfg.tracking, run_name=name) as tracker:
+        out = _run_stages(cfg, seq, seq_root, run_dir, tracker, progress)
+        metrics = dict(out.stages["evaluate"].value)
+        dyn = out.stages["dynamics"].value
+        metrics.update(
+            {
+                "object": cfg.synth.object,
+                "preset": cfg.preset,
+                "seed": cfg.seed,
+                "sequence": str(seq_root),
+                "dynamic_loss_first_pass": dyn["pass_losses"][0] if dyn["pass_losses"] else None,
+                "dynamic_loss_last_pass": dyn["pass_losses"][-1] if dyn["pass_losses"] else None,
+                "dynamic_eval_loss_initial": dyn["eval_loss_initial"],
+                "dynamic_eval_loss_final": dyn["eval_loss_final"],
+                "identified": {
+                    "log10_k_mean": float(np.mean(dyn["log10_k"])),
+                    "log10_k_std": float(np.std(dyn["log10_k"])),
+                    "kappa": dyn["kappa"],
+                    "friction": dyn["friction"],
+                    "restitution": dyn["restitution"],
+                    "v0": list(out.stages["velocity"].value["v0"]),
+                },
+                "stages_skipped": [n for n, r in out.stages.items() if r.skipped],
+                "stage_seconds": {"sequence": t_sequence, **{n: r.seconds for n, r in out.stages.items()}},
+                "minutes": (time.time() - t_start) / 60.0,
+            }
+        )
+        for i, loss in enumerate(dyn["pass_losses"]):
+            tracker.log_metrics({"dynamic_pass_loss": loss}, step=i)
+        tracker.finish(metrics)
+        tracker.log_artifact(run_dir / "report", "report")
+        out.metrics = metrics
+    return out
+
+
+def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool) -> RunOutputs:
+    """Run `PIPELINE` in order through the stage runner (skip, resume or redo each stage)."""
+    runner = StageRunner(run_dir, force=cfg.recon.force)
+    seq_hash = sequence_digest(seq_root)
+    ctx = RunContext(cfg, seq, tracker, progress)
+    stages: dict[str, StageResult] = {}
+    for st in PIPELINE:
+        key = dict(stage_sections(cfg, st.name))
+        if st.seeded:
+            key["seed"] = cfg.seed
+        if st.reads_sequence:
+            key["sequence"] = seq_hash
+        key["input"] = [stages[n].digest for n in st.needs]
+        if st.extra_key is not None:
+            key.update(st.extra_key(ctx))
+        stages[st.name] = runner.run(st.name, key, partial(st.produce, ctx), partial(st.load, ctx))
+        ctx.values[st.name] = stages[st.name].value
+    return RunOutputs(run_dir, {}, stages)

@@ -1,1 +1,0 @@
-"""The reconstruction pipeline: static fit -> anchors -> refine -> v0 -> dynamics -> predict."""

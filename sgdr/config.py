@@ -1,8 +1,9 @@
 """The top-level typed config schema, assembled from each stage's own schema.
 
-Hydra composes `conf/config.yaml` (defaults: this schema, then the `preset` group (scale),
-the `method` group (method), then overrides) and validates it against `Config`. `register()` puts the schema in Hydra's
-ConfigStore; entry points call it before `@hydra.main` runs (see `experiments/`).
+Hydra composes `conf/config.yaml` (defaults: this schema, then the `preset` group (scale), the
+`method` group (method), then overrides) and validates it against `Config`. `register()` puts
+the schema in Hydra's ConfigStore; entry points call it before `@hydra.main` runs (see
+`experiments/`).
 """
 
 from __future__ import annotations

@@ -17,12 +17,12 @@ class PhysicsConfig:
     spring_law: str = "official"  # "official": (1+|strain|)^p_k factor; "paper": |Δl|^p_k (Eq. 8)
     springs: str = "directed"  # "directed" (official, force on i uses k_i) | "symmetric" (Newton 3)
     symmetric_stiffness: str = "harmonic"  # k of a symmetric spring from k_i, k_j: "harmonic" | "arithmetic"
-    soft_vector_normalised: bool = True  # official: exponent (r - n_c) / (n_k - n_c) for the 0-based rank r (Eq. 15); False: j - n_c, 1-based j (paper)
+    soft_vector_normalised: bool = (
+        True  # Eq. 15 exponent: (r - n_c)/(n_k - n_c), 0-based r (official) | j - n_c, 1-based j
+    )
     contact: str = "project"  # "project" (official, per-substep μ) | "coulomb" (restitution e, μ)
     rest_speed_factor: float = 2.0  # "coulomb": approach speeds below this x |g| dt are resting contact (no bounce)
-    n_substeps: int = (
-        100  # n_t, semi-implicit Euler substeps per frame (the dynamic stage scales it by recon.substep_growth)
-    )
+    n_substeps: int = 100  # n_t, Euler substeps per frame (the dynamic stage scales it by recon.substep_growth)
     max_substeps: int = 400  # upper limit when retrying an unstable rollout with more substeps
     retry_on_nan: bool = True  # the official remedy, the only one: an unstable frame is redone with 2x substeps
     cfl_factor: float = 1.4  # stability bound checked before running: dt <= cfl_factor * sqrt(m / k_eff)

@@ -1,6 +1,6 @@
-"""Differentiable Gaussian splatting (Eqs. 1-3) and image losses, as Dr.Jit programs."""
+"""Differentiable Gaussian splatting (Eqs. 1-3) as a Dr.Jit program (stage "render"); the image
+losses that compare its output with the targets are `sgdr.loss`."""
 
-from sgdr.loss import dssim, image_loss, l1, mask_loss, ssim
 from sgdr.render.splat import RenderError, RenderOutput, render
 
-__all__ = ["RenderError", "RenderOutput", "render", "l1", "ssim", "dssim", "image_loss", "mask_loss"]
+__all__ = ["RenderError", "RenderOutput", "render"]

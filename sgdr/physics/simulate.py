@@ -49,7 +49,7 @@ k_i = 10^log10_k_i and softplus(κ) are always recorded AD (once per frame). The
 Memory: per anchor and substep the tape keeps x, v and f (36 bytes; the gather op's own tape;
 tests/test_physics_memory.py measures 36-40 B marginal on LLVM for both adjoints), nothing per spring, so independent of n_k. A `full` gradient therefore costs about
 n_frames x n_t x N_A x 40 B: 164 MB at paper scale for 20 frames x 100 substeps x 2048 anchors
-(490 MB at 30 x 200); the process peak is measured by evaluation/bench_sim.py (README
+(490 MB at 30 x 200); the process peak is measured by evaluation/bench_sim.py (docs/benchmarks.md,
 "Simulator"), far under the 4 GiB bar. So no per-frame checkpointing is needed for memory.
 
 `truncated` (official) starts every frame after the first from the detached previous state:
@@ -57,7 +57,7 @@ the gradient is Σ_f ∂L/∂x_f · ∂Φ(θ, stop_grad(x_{f-1}))/∂θ, and fra
 `state0` as given, so v0 receives the gradient of the first frame. Its tape is the same size
 as long as the loss over all frames is built before `dr.backward` (as the pipeline does).
 
-Cost: measured gradient / forward at 2048 x 256 for both adjoints: README "Simulator".
+Cost: measured gradient / forward at 2048 x 256 for both adjoints: docs/benchmarks.md, "Simulator".
 """
 
 from __future__ import annotations
@@ -429,8 +429,8 @@ def rollout(
         raise PhysicsInputError(f"n_frames={n_frames} must be >= 1")
     if cfg.retry_on_nan:
         need = stable_substeps(model, params, dt_frame, cfg)
-        while n_sub < need and doubled_substeps(n_sub, cfg):
-            n_sub = doubled_substeps(n_sub, cfg)
+        while n_sub < need and (more := doubled_substeps(n_sub, cfg)):
+            n_sub = more
     while True:
         try:
             states = Rollout([state0])

@@ -12,7 +12,7 @@ help:
 	@echo "make bench      run benchmarks, one JSON line each (BENCH=sim|render|... for one)"
 	@echo "make data       generate the 7-object benchmark at the small preset into data/"
 	@echo "make demo       generate + reconstruct + predict + evaluate the torus (small preset)"
-	@echo "make reproduce  the README's seven-object table: every object at the small preset, then the table"
+	@echo "make reproduce  the seven-object table (docs/reconstruction-results.md): every object at the small preset, then the table"
 	@echo "make oracle     the spring-mass model fitted to the torus's ground-truth particle tracks (OBJECT=...)"
 
 setup:
@@ -39,7 +39,7 @@ RUN_TAG = $(PRESET)$(if $(filter spring_gaus,$(METHOD)),,_$(METHOD))
 demo:
 	$(PYTHON) experiments/reconstruct.py preset=small method=$(METHOD) synth.object=torus
 
-# The README's seven-object table: generate (or reuse) and reconstruct every object at the small
+# The seven-object table (docs/reconstruction-results.md): generate (or reuse) and reconstruct every object at the small
 # preset one after another (Hydra multirun, basic launcher: one process), then print the table.
 OBJECTS ?= torus cross cream apple paste chess banana
 comma := ,
@@ -51,7 +51,7 @@ reproduce:
 	$(PYTHON) -m evaluation.table $(foreach o,$(OBJECTS),outputs/$(o)_$(RUN_TAG)_s0)
 
 # The identification upper bound: the model fitted to the generator's particle tracks instead of
-# images (README, "Oracle"). About 2.5 min for the small torus on the 2-core machine.
+# images (docs/reconstruction-results.md). About 2.5 min for the small torus on the 2-core machine.
 OBJECT ?= torus
 oracle:
 	$(PYTHON) experiments/oracle.py preset=$(PRESET) method=$(METHOD) synth.object=$(OBJECT)

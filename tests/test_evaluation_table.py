@@ -1,4 +1,4 @@
-"""The results table of `python -m evaluation.table` (README's seven-object table)."""
+"""The results table of `python -m evaluation.table` (the seven-object table of docs/reconstruction-results.md)."""
 
 import json
 

@@ -141,7 +141,7 @@ def test_stiffer_half_of_a_bar_strains_less():
 
     Symmetric springs only: with the official directed springs the invariant does not hold
     (where stiff and soft anchors meet, the stiff ones push harder than the soft ones push back,
-    an unbalanced internal force that compresses the stiff half more; see README "Simulator")."""
+    an unbalanced internal force that compresses the stiff half more; see docs/physics-variants.md, "Findings")."""
     x_rest = _lattice(n=(3, 3, 12), h=0.03, origin=(0.5, 0.5, 0.0))
     cfg = PhysicsConfig(springs="symmetric", zeta0=3.0, n_c=12)
     model = build_spring_model(x_rest, 16, cfg)

@@ -39,7 +39,7 @@ is kept for the rest of training (as the official code keeps its raised n_t).
 Optional coarse start (`recon.log10_k_grid`, not in the official code): before the first pass
 every listed uniform log10 k is scored by the deterministic all-view rollout loss and the best
 one replaces physics.log10_k_init. Measured on the small torus, that loss is rugged in the
-global stiffness and its local gradient points away from the better basin (README).
+global stiffness and its local gradient points away from the better basin (docs/reconstruction-results.md).
 
 The stage checkpoints after every `recon.checkpoint_every` passes (parameters, Adam moments,
 loss history) and resumes exactly. Besides the noisy training loss (random cameras) it

@@ -211,7 +211,7 @@ def generate_sequence(cfg: SynthConfig, out_dir, seed: int, progress: bool = Fal
 
     cfg: SynthConfig (or the `synth` node of the composed Hydra config); seed: seeds the
     particle jitter and the path tracer. Returns out_dir. Takes 1-3 minutes at the small
-    preset on a 2-core CPU (README, "Benchmark data").
+    preset on a 2-core CPU (docs/benchmarks.md).
     """
     import mitsuba as mi
 

@@ -6,7 +6,7 @@ in sgdr/physics/reference.py exists)."""
 import itertools
 
 from sgdr.physics.config import PhysicsConfig
-from sgdr.physics.laws import CONTACTS, SPRING_LAWS, SYMMETRIC_STIFFNESS
+from sgdr.physics.laws import CONTACTS, SPRING_LAWS, SPRING_REACTION, SYMMETRIC_STIFFNESS
 from sgdr.physics.simulate import ADJOINTS, SPRINGS
 
 LAWS = sorted(SPRING_LAWS)
@@ -17,12 +17,12 @@ SOFT_VECTOR_FORMS = [True, False]  # physics.soft_vector_normalised: official | 
 
 
 def spring_variants():
-    """(springs, symmetric_stiffness): every stiffness combination rule for the symmetric
-    variants, the default one elsewhere (it is unused there)."""
+    """(springs, symmetric_stiffness): every stiffness combination rule for the variants whose
+    springs push back on both ends, the default one elsewhere (it is unused there)."""
     default = PhysicsConfig().symmetric_stiffness
     out = []
     for springs in SPRINGS_VARIANTS:
-        rules = sorted(SYMMETRIC_STIFFNESS) if springs != "directed" else [default]
+        rules = sorted(SYMMETRIC_STIFFNESS) if SPRING_REACTION.get_named(springs) else [default]
         out += [(springs, rule) for rule in rules]
     return out
 

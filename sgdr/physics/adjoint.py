@@ -32,6 +32,7 @@ from sgdr.backend import ad
 from sgdr.physics.config import PhysicsConfig
 from sgdr.physics.laws import (
     SPRING_LAW_SLOPES,
+    SPRING_REACTION,
     SYMMETRIC_STIFFNESS,
     SYMMETRIC_STIFFNESS_PARTIALS,
     soft_vector_eta,
@@ -89,7 +90,7 @@ def spring_forces_adjoint(model: SpringModel, x, v, k, sp, zeta0, f_bar, cfg: Ph
     results are left lazy: the caller evaluates them together with its own sums."""
     t = ad()
     n, n_k = model.n_anchors, model.n_k
-    symmetric = cfg.springs == "symmetric"
+    symmetric = SPRING_REACTION.get_named(cfg.springs)  # spring s also pushes its target back
     law_slope = SPRING_LAW_SLOPES.get_named(cfg.spring_law, "physics.spring_law")
     combine = SYMMETRIC_STIFFNESS.get_named(cfg.symmetric_stiffness, "physics.symmetric_stiffness")
     partials = SYMMETRIC_STIFFNESS_PARTIALS.get_named(cfg.symmetric_stiffness, "physics.symmetric_stiffness")

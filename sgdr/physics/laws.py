@@ -109,6 +109,14 @@ def stiffness_arithmetic(k_i, k_j):
     return 0.5 * (k_i + k_j)
 
 
+# Whether the springs variant (`physics.springs`, its force sums are `SPRINGS` in
+# sgdr/physics/simulate.py) makes spring s = (i -> j) push its target j back (Newton's third
+# law): what the hand-written adjoint and the stability bound need to know of each variant.
+SPRING_REACTION = Registry(
+    "springs variant", "physics.springs", PhysicsInputError, {"directed": False, "symmetric": True}
+)
+
+
 # (∂k_s/∂k_i, ∂k_s/∂k_j) of each symmetric stiffness, for the hand-written adjoint.
 SYMMETRIC_STIFFNESS_PARTIALS = Registry("symmetric-spring stiffness", "physics.symmetric_stiffness", PhysicsInputError)
 

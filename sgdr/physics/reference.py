@@ -15,20 +15,16 @@ from sgdr.physics.config import PhysicsConfig
 
 def params_numpy(params) -> dict:
     """PhysParams -> dict of float64 arrays/scalars (log10_k [N_A], v0 [3], gravity [3])."""
-    import drjit as dr
-
-    def vec(a):
-        a = dr.detach(a)
-        return np.array([float(a[c].numpy()[0]) for c in range(3)])
+    from sgdr.arrays import array3_to_points, scalar, to_numpy
 
     return {
-        "log10_k": np.asarray(dr.detach(params.log10_k).numpy(), dtype=np.float64),
-        "kappa": float(dr.detach(params.kappa).numpy()[0]),
-        "v0": vec(params.v0),
-        "friction": float(dr.detach(params.friction).numpy()[0]),
-        "restitution": float(dr.detach(params.restitution).numpy()[0]),
-        "zeta0": float(dr.detach(params.zeta0).numpy()[0]),
-        "gravity": vec(params.gravity),
+        "log10_k": to_numpy(params.log10_k),
+        "kappa": scalar(params.kappa),
+        "v0": array3_to_points(params.v0)[0],
+        "friction": scalar(params.friction),
+        "restitution": scalar(params.restitution),
+        "zeta0": scalar(params.zeta0),
+        "gravity": array3_to_points(params.gravity)[0],
     }
 
 

@@ -67,6 +67,7 @@ from collections.abc import Callable
 import drjit as dr
 import numpy as np
 
+from sgdr.arrays import scalar, to_numpy
 from sgdr.backend import ad
 from sgdr.physics.adjoint import frame_gather
 from sgdr.physics.config import PhysicsConfig
@@ -74,6 +75,7 @@ from sgdr.physics.laws import (
     CONTACTS,
     LN10,
     SPRING_LAWS,
+    SPRING_REACTION,
     SYMMETRIC_STIFFNESS,
     Registry,
     soft_vector_eta,
@@ -206,10 +208,10 @@ def effective_stiffness(model: SpringModel, params: PhysParams, cfg: PhysicsConf
     """k_eff,i = Σ over the springs acting on anchor i of η k_s / l (linear part, strain 0),
     float64 [N_A]: the diagonal of the stiffness matrix that bounds the stable substep."""
     host = model_host(model)
-    k = 10.0 ** np.asarray(dr.detach(params.log10_k).numpy(), dtype=np.float64)
-    eta = soft_vector_numpy(float(dr.detach(params.kappa).numpy()[0]), model.n_k, model.n_c, cfg.soft_vector_normalised)
+    k = 10.0 ** to_numpy(params.log10_k)
+    eta = soft_vector_numpy(scalar(params.kappa), model.n_k, model.n_c, cfg.soft_vector_normalised)
     j, l = host["spring_j"], host["spring_rest_length"]
-    if cfg.springs == "directed":
+    if not SPRING_REACTION.get_named(cfg.springs):
         return k * (eta[None, :] / l).sum(axis=1)
     combine = SYMMETRIC_STIFFNESS.get_named(cfg.symmetric_stiffness, "physics.symmetric_stiffness")
     k_s = combine(k[:, None], k[j]) * eta[None, :] / l  # the registry's functions work on NumPy too
@@ -221,11 +223,9 @@ def model_host(model: SpringModel) -> dict:
     cache = model.__dict__.get("_host")
     if cache is None:
         cache = {
-            "spring_j": np.asarray(model.spring_j.numpy(), dtype=np.int64).reshape(model.n_anchors, model.n_k),
-            "spring_rest_length": np.asarray(model.spring_rest_length.numpy(), dtype=np.float64).reshape(
-                model.n_anchors, model.n_k
-            ),
-            "particle_mass": np.asarray(model.particle_mass.numpy(), dtype=np.float64),
+            "spring_j": to_numpy(model.spring_j, np.int64).reshape(model.n_anchors, model.n_k),
+            "spring_rest_length": to_numpy(model.spring_rest_length).reshape(model.n_anchors, model.n_k),
+            "particle_mass": to_numpy(model.particle_mass),
         }
         model.__dict__["_host"] = cache
     return cache
@@ -258,7 +258,7 @@ def check_inputs(
         raise PhysicsInputError("SpringModel.particle_mass must be positive (physics.m0)")
     need = stable_substeps(model, params, dt_frame, cfg)
     if n_substeps < need:
-        k_max = float(np.max(dr.detach(params.log10_k).numpy()))
+        k_max = float(np.max(to_numpy(params.log10_k)))
         raise SimulationUnstable(
             f"dt = dt_frame / n_substeps = {dt_frame / n_substeps:.3g} s is too large for max log10_k = "
             f"{k_max:.3g}: stability needs dt <= physics.cfl_factor ({cfg.cfl_factor}) x sqrt(m / k_eff), "
@@ -280,7 +280,7 @@ def _frame_constants(model: SpringModel, params: PhysParams, ground: Ground):
         "inv_m": dr.rcp(model.particle_mass),  # [N_A]
         "point": t.Array3f(*map(float, ground.point)),
         "normal": t.Array3f(*map(float, ground.normal)),
-        "g_norm": dr.opaque(t.Float, float(np.linalg.norm(dr.detach(params.gravity).numpy()))),
+        "g_norm": dr.opaque(t.Float, float(np.linalg.norm(to_numpy(params.gravity)))),
     }
 
 

@@ -4,9 +4,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from sgdr.checks import non_empty_text
+
 
 @dataclass
 class TrackingConfig:
     enabled: bool = True  # log to MLflow
     uri: str = "sqlite:///mlflow.db"  # SQLite store by default; an http:// URI for a server
     experiment: str = "sgdr"  # MLflow experiment name
+
+
+# Allowed values, checked before any work (sgdr.checks).
+CHECKS = {"uri": non_empty_text(), "experiment": non_empty_text()}

@@ -44,7 +44,7 @@ def test_ground_is_drawn_below_the_horizon_behind_the_object():
     # a camera under the ground sees none of it
     under = Camera.look_at([0, 0, -1], [0, 1, -1], [0, 0, 1], 60.0, 40, 30)
     assert (composite_ground(rgb * 0, alpha * 0, under, [0, 0, 0], [0, 0, 1]) == 0).all()
-    with pytest.raises(ValueError, match="differ in size"):
+    with pytest.raises(ValueError, match="differ in size"):  # names the sizes
         composite_ground(rgb[:10], alpha[:10], cam, [0, 0, 0], [0, 0, 1])
 
 
@@ -233,3 +233,20 @@ def test_report_stage_writes_a_self_contained_page(tmp_path, cfg, fixture):
     state = assert_report_reads_well(out / "report.html")
     assert len(state["images"]) == 3  # metric curves, losses, stiffness
     assert all(v["duration"] >= 4.0 for v in state["videos"])  # 3 and 1 frames, held to last 4 s
+
+
+def test_a_later_driver_adds_and_replaces_a_section(tmp_path):
+    from sgdr.pipeline.report_html import Section, add_section, paragraph, write_report
+    from sgdr.pipeline.verdict import Verdict
+
+    page = write_report(
+        tmp_path / "report.html", "run", Verdict("good", "better", "Fit good."), [Section("Scores", "")]
+    )
+    add_section(page, Section("Posterior", paragraph("first <draft>")))
+    add_section(page, Section("Posterior", paragraph("final")))
+    text = page.read_text()
+    assert text.count('id="posterior"') == 1 and "final" in text and "draft" not in text
+    assert text.index('id="scores"') < text.index('id="posterior"') and 'href="#posterior"' in text
+    (tmp_path / "other.html").write_text("<html></html>")
+    with pytest.raises(ValueError, match="markers missing"):
+        add_section(tmp_path / "other.html", Section("x", ""))

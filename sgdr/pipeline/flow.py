@@ -283,13 +283,14 @@ def report_frames(seq, pred) -> list[np.ndarray]:
     sequence's ground plane, with the frame number and the FIT / FUTURE marker."""
     from sgdr.pipeline import report
 
+    grounds = [report.ground_image(cam, seq.ground_point, seq.ground_normal) for cam in seq.cameras]
     frames = []
     for f in range(seq.n_frames):
         gts, preds = [], []
-        for v, cam in enumerate(seq.cameras):
+        for v, ground in enumerate(grounds):
             gt, p = seq.image(v, f), pred.images[f, v]
-            gts.append(report.composite_ground(gt[..., :3], gt[..., 3], cam, seq.ground_point, seq.ground_normal))
-            preds.append(report.composite_ground(p[..., :3], p[..., 3], cam, seq.ground_point, seq.ground_normal))
+            gts.append(report.over_ground(gt[..., :3], gt[..., 3], ground))
+            preds.append(report.over_ground(p[..., :3], p[..., 3], ground))
         frames.append(report.video_frame(gts, preds, f, seq.n_frames, seq.n_fit))
     return frames
 

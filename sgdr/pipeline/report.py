@@ -75,13 +75,14 @@ def playback(n_frames: int, seconds: float = 5.0, lo: float = 2.0, hi: float = 6
 
 
 # ------------------------------------------------------------------------------ ground plane
-def ground_image(camera, ground_point, ground_normal, square: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """What `camera` sees of the ground plane: (rgb [H, W, 3] float, hit [H, W] bool).
+def ground_image(camera, ground_point, ground_normal, square: float | None = None, samples: int = 3) -> np.ndarray:
+    """What `camera` sees of the ground plane: [H, W, 3] float in [0, 1].
 
     A grey checkerboard of `square` scene units (default: 1/16 of the camera's distance to
-    `ground_point`) where the ray through a pixel centre hits the plane in front of the camera,
-    fading into the dark with distance; black where it does not (above the horizon, or the
-    camera below the plane). camera: `sgdr.cameras.Camera` (OpenCV, world-to-camera [R|t]).
+    `ground_point`) where the ray through a pixel hits the plane in front of the camera, fading
+    into the dark with distance; black where it does not (above the horizon, or the camera
+    below the plane). Each pixel averages samples x samples rays (against moire far away).
+    camera: `sgdr.cameras.Camera` (OpenCV, world-to-camera [R|t]).
     """
     p0 = np.asarray(ground_point, float).reshape(3)
     n = np.asarray(ground_normal, float).reshape(3)
@@ -90,42 +91,47 @@ def ground_image(camera, ground_point, ground_normal, square: float | None = Non
     centre = -R.T @ t
     d0 = float(np.linalg.norm(centre - p0))
     square = float(square) if square else d0 / 16.0
-    u, v = np.meshgrid(np.arange(camera.width) + 0.5, np.arange(camera.height) + 0.5)
-    pix = np.stack([u, v, np.ones_like(u)], axis=-1)  # [H, W, 3]
-    dirs = pix @ np.linalg.inv(K).T @ R  # camera rays in world: R^T K^-1 [u, v, 1]
-    denom = dirs @ n
     height = float((centre - p0) @ n)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = -height / denom
-    hit = (height > 0) & (denom < 0) & np.isfinite(s) & (s > 0)
-    s = np.where(hit, s, 0.0)
-    X = centre + s[..., None] * dirs - p0  # [H, W, 3] hit points relative to p0
     e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(n, e1)
-    checker = (np.floor(X @ e1 / square) + np.floor(X @ e2 / square)) % 2
-    tone = np.where(checker > 0, 0.55, 0.40)
-    dist = np.linalg.norm(s[..., None] * dirs, axis=-1)
-    fade = np.exp(-dist / (4.0 * d0))  # far squares fade out (and stop aliasing at the horizon)
-    grey = np.where(hit, 0.08 + (tone - 0.08) * fade, 0.0)
-    return np.repeat(grey[..., None], 3, axis=-1), hit
+    offsets = (np.arange(samples) + 0.5) / samples
+    grey = np.zeros((camera.height, camera.width))
+    for du in offsets:
+        for dv in offsets:
+            u, v = np.meshgrid(np.arange(camera.width) + du, np.arange(camera.height) + dv)
+            dirs = np.stack([u, v, np.ones_like(u)], axis=-1) @ np.linalg.inv(K).T @ R  # world rays R^T K^-1 [u, v, 1]
+            denom = dirs @ n
+            with np.errstate(divide="ignore", invalid="ignore"):
+                s = -height / denom
+            hit = (height > 0) & (denom < 0) & np.isfinite(s) & (s > 0)
+            s = np.where(hit, s, 0.0)
+            X = centre + s[..., None] * dirs - p0  # hit points relative to p0
+            checker = (np.floor(X @ e1 / square) + np.floor(X @ e2 / square)) % 2
+            tone = np.where(checker > 0, 0.55, 0.40)
+            fade = np.exp(-np.linalg.norm(s[..., None] * dirs, axis=-1) / (4.0 * d0))  # far squares fade out
+            grey += np.where(hit, 0.08 + (tone - 0.08) * fade, 0.0)
+    return np.repeat((grey / samples**2)[..., None], 3, axis=-1)
+
+
+def over_ground(rgb, alpha, ground: np.ndarray) -> np.ndarray:
+    """rgb [H, W, 3] over black (premultiplied; float in [0, 1] or uint8) with its alpha [H, W]
+    (float in [0, 1] or uint8) over a background `ground` [H, W, 3] float -> [H, W, 3] uint8."""
+    fg = np.asarray(rgb)
+    fg = fg.astype(np.float64) / 255.0 if fg.dtype == np.uint8 else fg.astype(np.float64)
+    a = np.asarray(alpha)
+    a = a.astype(np.float64) / 255.0 if a.dtype == np.uint8 else a.astype(np.float64)
+    if fg.shape[:2] != a.shape[:2] or fg.shape[:2] != ground.shape[:2]:
+        raise ValueError(
+            f"over_ground: image {fg.shape[:2]}, alpha {a.shape[:2]}, ground {ground.shape[:2]} differ in size"
+        )
+    return to_uint8(fg[..., :3] + (1.0 - np.clip(a.reshape(a.shape[:2] + (1,)), 0.0, 1.0)) * ground)
 
 
 def composite_ground(rgb, alpha, camera, ground_point, ground_normal, square: float | None = None) -> np.ndarray:
-    """The ground plane (`ground_image`) behind an image: rgb [H, W, 3] over black (premultiplied,
-    float in [0, 1] or uint8) with its alpha [H, W] in [0, 1] -> [H, W, 3] uint8."""
-    fg = np.asarray(rgb)
-    fg = fg.astype(np.float64) / 255.0 if fg.dtype == np.uint8 else fg.astype(np.float64)
-    a = np.asarray(alpha, dtype=np.float64)
-    a = a / 255.0 if np.asarray(alpha).dtype == np.uint8 else a
-    if fg.shape[:2] != a.shape[:2] or fg.shape[:2] != (camera.height, camera.width):
-        raise ValueError(
-            f"composite_ground: image {fg.shape[:2]}, alpha {a.shape[:2]} and camera "
-            f"{(camera.height, camera.width)} differ in size"
-        )
-    ground, _ = ground_image(camera, ground_point, ground_normal, square)
-    out = fg[..., :3] + (1.0 - np.clip(a.reshape(a.shape[:2] + (1,)), 0.0, 1.0)) * ground
-    return to_uint8(out)
+    """The ground plane seen by `camera` (`ground_image`) behind an image (`over_ground`):
+    rgb [H, W, 3] over black with its alpha [H, W] -> [H, W, 3] uint8."""
+    return over_ground(rgb, alpha, ground_image(camera, ground_point, ground_normal, square))
 
 
 # ------------------------------------------------------------------------------ labelled video frames

@@ -7,8 +7,10 @@ in words), then the warnings, then one `Section` after another.
 
 Adding a section (the posterior, discrepancy and table issues): write a function that returns
 a `Section(title, body_html)`, building its body with `image`, `video`, `table`, `paragraph`
-(or any HTML fragment whose text is escaped with `esc`), and append it to the sections the
-report stage passes to `write_report` (`run_sections` in `sgdr.pipeline.flow.report_produce`).
+(or any HTML fragment whose text is escaped with `esc`), and either append it to the sections
+the report stage passes to `write_report` (`run_sections` in `sgdr.pipeline.flow.report_produce`),
+or, from a driver that runs on a finished run, add it to the written page with `add_section`
+(a section of the same title is replaced; redoing the report stage drops it).
 """
 
 from __future__ import annotations
@@ -103,6 +105,37 @@ th { background: #f0f0f0; } nav a { margin-right: 1em; }
 """
 
 
+NAV_END = "<!--nav-end-->"  # markers where `add_section` inserts into a written page
+SECTIONS_END = "<!--sections-end-->"
+
+
+def _nav_link(s: Section) -> str:
+    return f'<a href="#{s.anchor}">{esc(s.title)}</a>'
+
+
+def _section_html(s: Section) -> str:
+    return f'<!--section:{s.anchor}--><section id="{s.anchor}"><h2>{esc(s.title)}</h2>{s.body}</section><!--/section:{s.anchor}-->\n'
+
+
+def add_section(path, section: Section) -> Path:
+    """Add `section` at the end of a report written by `write_report` (and to its contents);
+    a section with the same title is replaced in place."""
+    path = Path(path)
+    page = path.read_text(encoding="utf-8")
+    if NAV_END not in page or SECTIONS_END not in page:
+        raise ValueError(f"{path}: not a report written by sgdr.pipeline.report_html.write_report (markers missing)")
+    old = re.compile(
+        rf"<!--section:{re.escape(section.anchor)}-->.*?<!--/section:{re.escape(section.anchor)}-->\n", re.S
+    )
+    if old.search(page):
+        page = old.sub(lambda _: _section_html(section), page, count=1)
+    else:
+        page = page.replace(NAV_END, _nav_link(section) + NAV_END, 1)
+        page = page.replace(SECTIONS_END, _section_html(section) + SECTIONS_END, 1)
+    path.write_text(page, encoding="utf-8")
+    return path
+
+
 def write_report(path, title: str, verdict: Verdict, sections: Sequence[Section], subtitle: str = "") -> Path:
     """Write the self-contained page: title, verdict, warnings, contents, sections."""
     verdict_html = (
@@ -116,13 +149,13 @@ def write_report(path, title: str, verdict: Verdict, sections: Sequence[Section]
         warn_html = f'<section id="warnings"><h2>Warnings ({len(verdict.warnings)})</h2><ul>{items}</ul></section>'
     else:
         warn_html = '<section id="warnings" class="none"><h2>Warnings</h2><p>None.</p></section>'
-    nav = "<nav>" + "".join(f'<a href="#{s.anchor}">{esc(s.title)}</a>' for s in sections) + "</nav>"
-    body = "".join(f'<section id="{s.anchor}"><h2>{esc(s.title)}</h2>{s.body}</section>' for s in sections)
+    nav = "<nav>" + "".join(_nav_link(s) for s in sections) + f"{NAV_END}</nav>\n"
+    body = "".join(_section_html(s) for s in sections)
     sub = f"<p>{esc(subtitle)}</p>" if subtitle else ""
     page = (
         '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
         f"<title>{esc(title)}</title><style>{STYLE}</style></head>"
-        f"<body><h1>{esc(title)}</h1>{sub}{verdict_html}{warn_html}{nav}{body}</body></html>\n"
+        f"<body><h1>{esc(title)}</h1>{sub}{verdict_html}{warn_html}{nav}{body}{SECTIONS_END}</body></html>\n"
     )
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -2,6 +2,7 @@
 scores (also without ground truth), and report.html built by the report stage's own code from
 a fixture sequence, opened in headless Chromium."""
 
+import copy
 import json
 import math
 from html.parser import HTMLParser
@@ -207,7 +208,8 @@ def test_report_stage_writes_a_self_contained_page(tmp_path, cfg, fixture):
 
     seq = load_sequence(DATA / fixture)
     pred = _perfect_prediction(seq)
-    cfg.recon.write_plys = False
+    cfg = copy.deepcopy(cfg)
+    cfg.recon.write_plys = False  # (the PLYs need the refined Gaussians)
     ctx = RunContext(cfg, seq, None, False)
     rng = np.random.default_rng(0)
     ctx.values.update(

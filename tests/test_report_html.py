@@ -252,3 +252,21 @@ def test_a_later_driver_adds_and_replaces_a_section(tmp_path):
     (tmp_path / "other.html").write_text("<html></html>")
     with pytest.raises(ValueError, match="markers missing"):
         add_section(tmp_path / "other.html", Section("x", ""))
+
+
+def test_metrics_json_is_strict_when_no_pass_ran(cfg, tmp_path):
+    from sgdr.pipeline.run import run_metrics
+    from sgdr.pipeline.stages import StageResult
+
+    scores = {"future_cd": None, "missing": {"future_cd": "the sequence has no ground-truth particles (gt/)"}}
+    dyn = _dyn(pass_losses=[], eval_loss_final=float("nan"))
+    stages = {
+        name: StageResult(name, value, "digest", tmp_path, False, 1.0)
+        for name, value in (("evaluate", scores), ("dynamics", dyn), ("velocity", {"v0": np.zeros(3)}))
+    }
+    m = run_metrics(cfg, tmp_path, stages, 0.0, 0.0)
+    json.dumps(m, allow_nan=False)
+    assert m["dynamic_eval_loss_final"] is None and m["missing"]["dynamic_eval_loss_final"] == "not finite (nan)"
+    assert m["dynamic_loss_first_pass"] is None and "no dynamic pass ran" in m["missing"]["dynamic_loss_first_pass"]
+    assert m["future_cd"] is None and m["missing"]["future_cd"].startswith("the sequence has no ground-truth")
+    assert m["identified"]["v0"] == [0.0, 0.0, 0.0]

@@ -120,6 +120,11 @@ def test_verdict_without_ground_truth_scores_images_only(cfg):
     assert v.future == "not scored"
     assert "cannot be scored geometrically: the sequence has no ground-truth particles (gt/)" in v.sentences[1]
     assert "20.0 dB" in v.sentences[1]
+    s = _scores(base=None)
+    s["missing"] = {"baseline_future_cd": "fewer than 2 fit frames"}
+    v = judge(s, _dyn(), cfg.recon, cfg.physics)
+    assert v.future == "not scored" and v.headline == "Fit good, future not compared with a baseline."
+    assert "1.88" in v.sentences[1] and "fewer than 2 fit frames" in v.sentences[1]
 
 
 def test_warnings_name_parameters_at_bounds_and_losses_that_do_not_fall(cfg):

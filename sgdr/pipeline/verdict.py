@@ -12,7 +12,8 @@ Verdict rules (also in docs/report.md):
   and "held still", sgdr.evaluate.baselines): the ratio future CD / baseline CD; "better" when
   < 1, "worse" otherwise. The constant-velocity extrapolation is named when it beats the model.
   Without ground-truth particles (no gt/) the future cannot be scored geometrically: the
-  verdict says so and gives the image PSNR of the future frames only ("not scored").
+  verdict says so and gives the image PSNR of the future frames only ("not scored"); a future
+  CD without a baseline (fewer than 2 fit frames) is stated without a comparison.
 
 Warnings:
 - identified parameters at the bounds of their allowed range: half or more of the anchors'
@@ -43,7 +44,7 @@ BOUND_SHARE = 0.5  # warn when at least this share of the anchors' log10 k_i sit
 @dataclass
 class Verdict:
     fit_quality: str  # "good" | "fair" | "poor" | "unknown"
-    future: str  # "better" | "worse" (than the physics-free baseline) | "not scored"
+    future: str  # "better" | "worse" (than the physics-free baseline) | "not scored" (no CD or no baseline)
     headline: str  # one line: the fit quality and the future against the baseline
     sentences: list[str] = field(default_factory=list)  # the verdict in a few plain sentences
     warnings: list[str] = field(default_factory=list)
@@ -82,6 +83,10 @@ def future_verdict(scores: dict) -> tuple[str, str, list[str]]:
     baselines."""
     cd, base = _finite(scores.get("future_cd")), _finite(scores.get("baseline_future_cd"))
     missing = scores.get("missing", {})
+    if cd is not None and base is None:
+        why = missing.get("baseline_future_cd", "it was not computed")
+        text = f"The future prediction (Chamfer distance {cd:.3g}) has no physics-free baseline to compare with: {why}."
+        return "not scored", "future not compared with a baseline", [text]
     if cd is None or base is None:
         why = missing.get("future_cd") or missing.get("baseline_future_cd") or "it was not computed"
         text = f"The future cannot be scored geometrically: {why}."

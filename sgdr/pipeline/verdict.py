@@ -50,6 +50,11 @@ class Verdict:
     warnings: list[str] = field(default_factory=list)
 
 
+def _num(x: float) -> str:
+    """Three significant digits, trailing zeros kept ("2.00", "0.449", "12.3", "123")."""
+    return f"{x:#.3g}".rstrip(".")
+
+
 def _finite(x) -> float | None:
     return None if x is None or not math.isfinite(float(x)) else float(x)
 
@@ -67,7 +72,7 @@ def fit_verdict(scores: dict) -> tuple[str, str]:
     )
     cd = _finite(scores.get("fit_cd"))
     if cd is not None:
-        text += f"; the predicted shapes are at Chamfer distance {cd:.3g} (x1e3) from the ground-truth particles"
+        text += f"; the predicted shapes are at Chamfer distance {_num(cd)} (x1e3) from the ground-truth particles"
     return quality, text + "."
 
 
@@ -85,7 +90,9 @@ def future_verdict(scores: dict) -> tuple[str, str, list[str]]:
     missing = scores.get("missing", {})
     if cd is not None and base is None:
         why = missing.get("baseline_future_cd", "it was not computed")
-        text = f"The future prediction (Chamfer distance {cd:.3g}) has no physics-free baseline to compare with: {why}."
+        text = (
+            f"The future prediction (Chamfer distance {_num(cd)}) has no physics-free baseline to compare with: {why}."
+        )
         return "not scored", "future not compared with a baseline", [text]
     if cd is None or base is None:
         why = missing.get("future_cd") or missing.get("baseline_future_cd") or "it was not computed"
@@ -97,7 +104,9 @@ def future_verdict(scores: dict) -> tuple[str, str, list[str]]:
             text += f" (fit frames: {fit:.1f} dB)." if fit is not None else "."
         return "not scored", "future not scored geometrically", [text]
     variant = str(scores.get("baseline_variant", "")).replace("_", " ")
-    against = f"Chamfer distance {cd:.3g} against {base:.3g} for the better of 'ballistic' and 'held still' ({variant})"
+    against = (
+        f"Chamfer distance {_num(cd)} against {_num(base)} for the better of 'ballistic' and 'held still' ({variant})"
+    )
     if cd < base:
         verdict, factor = "better", _times(base, cd)
         out = [f"The future prediction beats the physics-free baseline: {against}, {factor} better."]
@@ -111,7 +120,7 @@ def future_verdict(scores: dict) -> tuple[str, str, list[str]]:
     if cv is not None and cv < cd:
         out.append(
             f"A constant-velocity extrapolation of the last two fit frames (not part of the baseline's definition) "
-            f"does better too: Chamfer distance {cv:.3g}."
+            f"does better too: Chamfer distance {_num(cv)}."
         )
     return verdict, f"future {factor} {verdict} than the physics-free baseline", out
 
@@ -182,8 +191,8 @@ def _baseline_warnings(scores: dict) -> list[str]:
         b = _finite(b)
         if b is not None and b < cd:
             out.append(
-                f"The future prediction (Chamfer distance {cd:.3g}) is worse than the physics-free "
-                f"'{name.replace('_', ' ')}' baseline ({b:.3g}), {cd / b:.1f}x."
+                f"The future prediction (Chamfer distance {_num(cd)}) is worse than the physics-free "
+                f"'{name.replace('_', ' ')}' baseline ({_num(b)}), {_times(cd, b)}."
             )
     return out
 

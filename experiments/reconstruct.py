@@ -53,10 +53,11 @@ def main(cfg: DictConfig) -> None:
         logging.getLogger("sgdr").setLevel(logging.INFO)
         out = run_pipeline(OmegaConf.to_object(cfg), progress=True)
     report = out.run_dir / "report"
+    print(f"report:       {report / 'report.html'} (open in a browser: verdict, warnings, curves, videos)")
     print(f"run folder:   {out.run_dir}")
     print(f"metrics:      {out.run_dir / 'metrics.json'}")
     print(f"videos:       {report / 'side_by_side.mp4'} (ground truth | prediction), {report / 'future.mp4'}")
-    print(f"plots:        {report / 'losses.png'}, {report / 'stiffness.png'}")
+    print(f"plots:        {report / 'metric_curves.png'}, {report / 'losses.png'}, {report / 'stiffness.png'}")
     print(f"PLYs:         {report / 'ply'}/centres_*.ply, anchors_*.ply")
     print(f"asset:        {out.run_dir / 'asset'} (python experiments/simulate.py recon.simulate.asset=...)")
     print(f"MLflow store: {cfg.tracking.uri} (mlflow ui --backend-store-uri {cfg.tracking.uri})")

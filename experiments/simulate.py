@@ -5,7 +5,7 @@
 
 Edits (all under `recon.simulate`): ground_height, friction, gravity=[gx,gy,gz],
 stiffness_scale, v0=[vx,vy,vz], n_frames, n_substeps; cameras=sequence|orbit. Writes
-`video.mp4` (all views tiled, or the orbit) and `trajectory.npz` (anchors, centres).
+`video.mp4` (all views tiled, or the orbit, over the ground plane) and `trajectory.npz` (anchors, centres).
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ sgdr.config.register()
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     sgdr.backend.init(cfg.backend, cfg.threads or None)
-    from sgdr.pipeline.asset import load_asset, simulate_asset
-    from sgdr.pipeline.report import tile, write_video
+    from sgdr.pipeline.asset import edited_values, load_asset, simulate_asset
+    from sgdr.pipeline.report import composite_ground, tile, write_video
     from sgdr.pipeline.run import default_run_name
 
     logging.getLogger("sgdr").setLevel(logging.INFO)
@@ -42,7 +42,17 @@ def main(cfg: DictConfig) -> None:
     pred, cams = simulate_asset(asset, sim, c.render, progress=True)
     out = Path(sim.out_dir) if sim.out_dir else asset_dir.parent / "simulate" / sim.tag
     out.mkdir(parents=True, exist_ok=True)
-    frames = [tile(list(pred.images[f])) for f in range(pred.images.shape[0])]
+    ground = edited_values(asset, sim)[1]  # the simulated ground plane, drawn behind the object
+    view_cam = (lambda f, v: cams[f]) if sim.cameras == "orbit" else (lambda f, v: cams[v])
+    frames = [
+        tile(
+            [
+                composite_ground(im[..., :3], im[..., 3], view_cam(f, v), ground, asset.ground_normal)
+                for v, im in enumerate(views)
+            ]
+        )
+        for f, views in enumerate(pred.images)
+    ]
     video = write_video(out / "video.mp4", frames, asset.fps)
     np.savez(out / "trajectory.npz", anchors=pred.anchors, centres=pred.centres)
     (out / "simulate.json").write_text(json.dumps(OmegaConf.to_container(cfg.recon.simulate), indent=1))

@@ -23,6 +23,12 @@ if ! ls /usr/lib/*/libLLVM-19.so* /usr/lib/libLLVM-19.so* >/dev/null 2>&1; then
     apt_install libllvm19
 fi
 
+# The report test opens report.html in a real browser: Debian's Chromium and its driver
+# (selenium drives /usr/bin/chromedriver; nothing is downloaded at test time).
+if [ ! -x /usr/bin/chromium ] || [ ! -x /usr/bin/chromedriver ]; then
+    apt_install chromium chromium-driver
+fi
+
 command -v "$PY" >/dev/null 2>&1 || apt_install python3 python3-venv
 if [ ! -x "$VENV/bin/python" ]; then
     if ! "$PY" -m venv "$VENV" 2>/dev/null; then

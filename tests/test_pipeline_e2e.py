@@ -3,10 +3,14 @@
 Asserts what issue 6 asks of CI: the dynamic loss decreases (the deterministic all-view loss
 of a rollout from frame 0, before vs after training) and the fitted model beats the
 physics-free baseline on future frames; plus the run's files, stage skipping on a rerun and
-the redo of a corrupted stage (with everything downstream of it).
+the redo of a corrupted stage (with everything downstream of it); the run's report.html opens
+in headless Chromium with its verdict, and a sequence without ground truth gets null scores with
+reasons instead of NaN.
 """
 
 import json
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +18,7 @@ from omegaconf import OmegaConf
 
 from sgdr.config import compose
 from sgdr.pipeline.run import STAGES, run_pipeline
+from tests.browser import assert_report_reads_well
 
 pytestmark = pytest.mark.slow  # the whole pipeline, and the drivers as subprocesses
 
@@ -46,16 +51,29 @@ def test_dynamic_loss_decreases_and_beats_the_baseline(tiny_run):
         assert np.isfinite(m[key]), key
 
 
+def strict_load(path: Path):
+    """json.loads that refuses NaN and Infinity (Python's json accepts them by default)."""
+
+    def refuse(name):
+        raise ValueError(f"{path}: {name} is not JSON")
+
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
 def test_run_folder_holds_the_record(tiny_run):
     _, _, out = tiny_run
     d = out.run_dir
-    metrics = json.loads((d / "metrics.json").read_text())
+    metrics = strict_load(d / "metrics.json")
+    strict_load(d / "evaluate" / "scores.json")
+    assert metrics["missing"] == {}  # the generated torus has ground truth: every score exists
     assert metrics["future_cd"] == out.metrics["future_cd"]
     # where the minutes go: every stage's wall time, plus finding/generating the sequence
     assert set(metrics["stage_seconds"]) == {"sequence", *STAGES}
     assert 0 < sum(metrics["stage_seconds"].values()) <= 60 * metrics["minutes"]
     assert (d / "config.yaml").exists()
     for name in (
+        "report.html",
+        "metric_curves.png",
         "side_by_side.mp4",
         "future.mp4",
         "losses.png",
@@ -65,6 +83,44 @@ def test_run_folder_holds_the_record(tiny_run):
     ):
         assert (d / "report" / name).stat().st_size > 0, name
     assert (d / "asset" / "asset.json").exists()
+
+
+def test_report_opens_in_a_browser_with_its_verdict(tiny_run):
+    _, _, out = tiny_run
+    state = assert_report_reads_well(out.run_dir / "report" / "report.html")
+    m = out.metrics
+    ratio = m["future_cd"] / m["baseline_future_cd"]
+    factor = f"{1 / ratio:.1f}x better" if ratio < 1 else f"{ratio:.1f}x worse"
+    assert f"future {factor} than the physics-free baseline" in state["verdict_text"]
+    assert f"{m['fit_psnr']:.1f} dB" in state["verdict_text"]
+    assert len(state["videos"]) == 2 and all(v["duration"] >= 4.0 for v in state["videos"])
+    assert len(state["images"]) == 3  # per-frame metrics, losses, stiffness
+
+
+def test_a_sequence_without_ground_truth_is_reported_not_nan(tmp_path):
+    # the sgdr-layout fixture (2 views, 16x12, 3 frames) without its gt/ folder
+    seq = tmp_path / "no_gt"
+    shutil.copytree(Path(__file__).parent / "data" / "sgdr_seq", seq, ignore=shutil.ignore_patterns("gt"))
+    cfg = OmegaConf.to_object(
+        compose(
+            [
+                "preset=tiny",
+                f"sequence={seq}",
+                f"recon.output_dir={tmp_path / 'outputs'}",
+                f"tracking.uri=sqlite:///{tmp_path / 'mlflow.db'}",
+            ]
+        )
+    )
+    out = run_pipeline(cfg, progress=False)
+    metrics = strict_load(out.run_dir / "metrics.json")
+    for key in ("fit_cd", "future_cd", "future_emd", "baseline_future_cd"):
+        assert metrics[key] is None
+        assert metrics["missing"][key] == "the sequence has no ground-truth particles (gt/)"
+    assert np.isfinite(metrics["future_psnr"])
+    state = assert_report_reads_well(out.run_dir / "report" / "report.html")
+    assert "future not scored geometrically" in state["verdict_text"]
+    assert "cannot be scored geometrically: the sequence has no ground-truth particles" in state["verdict_text"]
+    assert f"{metrics['future_psnr']:.1f} dB" in state["verdict_text"]
 
 
 def test_rerun_skips_and_corruption_is_redone(tiny_run):

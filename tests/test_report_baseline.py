@@ -5,10 +5,11 @@ import pytest
 
 from sgdr.evaluate.baselines import physics_free_predictions
 from sgdr.pipeline.report import (
+    labelled_pair,
     plot_losses,
+    plot_metric_curves,
     plot_stiffness,
     read_points_ply,
-    side_by_side,
     tile,
     write_frame_plys,
     write_points_ply,
@@ -16,13 +17,12 @@ from sgdr.pipeline.report import (
 )
 
 
-def test_side_by_side_layout():
-    gt = [np.full((8, 10, 3), 1.0)] * 3
-    pred = [np.zeros((8, 10, 4))] * 3
-    frame = side_by_side(gt, pred, cols=3)
-    pair_w = 10 + 1 + 10
-    assert frame.shape == (8, 3 * pair_w + 2 * 4, 3) and frame.dtype == np.uint8
-    assert frame[0, 0, 0] == 255 and frame[0, 11, 0] == 0  # gt left, prediction right
+def test_pair_layout():
+    gt, pred = np.full((8, 10, 3), 1.0), np.zeros((8, 10, 4))
+    pair = labelled_pair(gt, pred, min_height=24, header=16)  # enlarged 3x, titled
+    assert pair.shape == (16 + 24, 2 * 30 + 1, 3) and pair.dtype == np.uint8
+    assert pair[20, 0, 0] == 255 and pair[20, 31, 0] == 0  # ground truth left, prediction right
+    assert pair[:16].max() > 200  # the titles are drawn in white
     assert tile([np.zeros((4, 4, 3))] * 5).shape == (2 * 4 + 2, 3 * 4 + 2 * 2, 3)
 
 
@@ -37,10 +37,14 @@ def test_video_roundtrip(tmp_path):
 
 
 def test_plots_are_written(tmp_path, rng):
-    p = plot_losses(tmp_path / "loss.png", {"dynamic": [1.0, 0.5, 0.25]})
-    q = plot_stiffness(tmp_path / "k.png", rng.random((50, 3)), 3 + rng.random(50))
-    for f in (p, q):
+    p = plot_losses(tmp_path / "loss.png", {"dynamic": [1.0, 0.5, 0.25], "v0": [2.0, 1.0]}, {"dynamic": "pass"})
+    q = plot_stiffness(tmp_path / "k.png", rng.random((50, 3)), 3 + rng.random(50), (0.0, 7.0))
+    per_frame = {"cd": [1.0, 2.0, None], "psnr": [30.0, 25.0, 20.0], "baseline_cd": {"still": [None, None, 1.5]}}
+    r = plot_metric_curves(tmp_path / "m.png", per_frame, 2)
+    for f in (p, q, r):
         assert f.stat().st_size > 5000 and f.read_bytes()[:4] == b"\x89PNG"
+    with pytest.raises(ValueError, match="no per-frame score"):
+        plot_metric_curves(tmp_path / "none.png", {"cd": [None], "psnr": []}, 1)
 
 
 def test_ply_roundtrip(tmp_path, rng):

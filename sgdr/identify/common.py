@@ -61,3 +61,15 @@ def render_rgb_numpy(gaussians, camera, render_cfg) -> np.ndarray:
     with dr.suspend_grad():
         out = render(gaussians, camera, render_cfg)
         return np.clip(to_numpy(out.rgb, np.float32), 0.0, 1.0)
+
+
+def render_rgba_numpy(gaussians, camera, render_cfg) -> np.ndarray:
+    """Forward-only render -> np [H, W, 4] float32 in [0, 1]: RGB over black (premultiplied) and
+    the accumulated opacity, so a background (the report's ground) can be composited behind it."""
+    import drjit as dr
+
+    with dr.suspend_grad():
+        out = render(gaussians, camera, render_cfg)
+        rgb = to_numpy(out.rgb, np.float32)
+        alpha = to_numpy(out.alpha, np.float32).reshape(rgb.shape[:2] + (1,))
+        return np.clip(np.concatenate([rgb, alpha], axis=-1), 0.0, 1.0)

@@ -250,7 +250,7 @@ def simulate_sequence_cameras(asset, model, params, binding, ground, n_frames, n
 def simulate_orbit_cameras(asset, model, params, binding, ground, n_frames, n_t, render_cfg, progress):
     """Frame t from orbit camera t: one turn around the object over the clip."""
     from sgdr.arrays import points_to_array3
-    from sgdr.identify.common import posed, render_rgb_numpy
+    from sgdr.identify.common import posed, render_rgba_numpy
     from sgdr.pipeline.predict import Prediction, predict
 
     traj = predict(
@@ -272,5 +272,5 @@ def simulate_orbit_cameras(asset, model, params, binding, ground, n_frames, n_t,
     images = []
     for f in range(n_frames):
         g = posed(asset.gaussians, points_to_array3(traj.centres[f]))
-        images.append((render_rgb_numpy(g, cams[f], render_cfg)[None] * 255.0 + 0.5).astype(np.uint8))
+        images.append((render_rgba_numpy(g, cams[f], render_cfg)[None] * 255.0 + 0.5).astype(np.uint8))
     return Prediction(traj.anchors, traj.centres, np.stack(images)), cams

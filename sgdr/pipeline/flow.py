@@ -254,47 +254,99 @@ def predict_load(ctx: RunContext, out: Path):
     n = ctx.seq.n_frames
     if a.shape[0] != n or c.shape[0] != n or imgs.shape[:2] != (n, len(ctx.cameras)):
         raise ValueError("predict outputs do not cover every frame and view of the sequence")
+    if imgs.ndim != 5 or imgs.shape[-1] != 4:
+        raise ValueError(f"predict/images.npy has shape {imgs.shape}, expected [T, V, H, W, 4] (RGBA)")
     return Prediction(a, c, imgs)
 
 
 # ---------------------------------------------------------------------- 7. evaluation
 def evaluate_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.evaluate.score import evaluate_prediction
+    from sgdr.evaluate.score import evaluate_prediction, strict_json
 
     r = ctx.cfg.recon
     scores = evaluate_prediction(
         ctx.values["predict"], ctx.seq, with_emd=r.eval_emd, seed=ctx.cfg.seed, workers=r.eval_workers
     )
-    (out / "scores.json").write_text(json.dumps(scores, indent=1, default=float))
+    missing = scores.pop("missing")
+    scores = strict_json(scores, missing)  # NaN/inf -> null, with the reason in "missing"
+    scores["missing"] = missing
+    (out / "scores.json").write_text(json.dumps(scores, indent=1, allow_nan=False))
 
 
 def evaluate_load(ctx: RunContext, out: Path) -> dict:
     return json.loads((out / "scores.json").read_text())
 
 
-# ---------------------------------------------------------------------- 8. report: videos, plots, per-frame PLYs
-def report_produce(ctx: RunContext, out: Path, ckpt) -> None:
+# ---------------------------------------------------------------------- 8. report: report.html, videos, plots, PLYs
+def report_frames(seq, pred) -> list[np.ndarray]:
+    """Labelled video frames of every frame: [ground truth | prediction] per view, both over the
+    sequence's ground plane, with the frame number and the FIT / FUTURE marker."""
     from sgdr.pipeline import report
 
-    seq, pred, dyn = ctx.seq, ctx.values["predict"], ctx.values["dynamics"]
-    if ctx.cfg.recon.render_videos:
-        frames = [
-            report.side_by_side([seq.image(v, f) for v in range(len(ctx.cameras))], list(pred.images[f]))
-            for f in range(seq.n_frames)
-        ]
-        report.write_video(out / "side_by_side.mp4", frames, seq.fps)
-        report.write_video(out / "future.mp4", frames[seq.n_fit :], seq.fps)
-    curves = {
-        "refine": ctx.values["refine"][1],
-        "v0": ctx.values["velocity"]["losses"],
-        "dynamics (per pass)": dyn["pass_losses"],
-    }
-    report.plot_losses(out / "losses.png", {k: v for k, v in curves.items() if v})
-    report.plot_stiffness(out / "stiffness.png", ctx.values["anchors"], dyn["log10_k"])
-    if ctx.cfg.recon.write_plys:
+    grounds = [report.ground_image(cam, seq.ground_point, seq.ground_normal) for cam in seq.cameras]
+    frames = []
+    for f in range(seq.n_frames):
+        gts, preds = [], []
+        for v, ground in enumerate(grounds):
+            gt, p = seq.image(v, f), pred.images[f, v]
+            gts.append(report.over_ground(gt[..., :3], gt[..., 3], ground))
+            preds.append(report.over_ground(p[..., :3], p[..., 3], ground))
+        frames.append(report.video_frame(gts, preds, f, seq.n_frames, seq.n_fit))
+    return frames
+
+
+def report_produce(ctx: RunContext, out: Path, ckpt) -> None:
+    from sgdr.pipeline import report
+    from sgdr.pipeline.report_html import Section, run_sections, table, write_report
+    from sgdr.pipeline.verdict import judge
+
+    cfg, seq, pred, dyn = ctx.cfg, ctx.seq, ctx.values["predict"], ctx.values["dynamics"]
+    videos = []
+    if cfg.recon.render_videos:
+        frames = report_frames(seq, pred)
+        for name, clip, what in (
+            ("side_by_side.mp4", frames, f"all {seq.n_frames} frames, fit then future"),
+            ("future.mp4", frames[seq.n_fit :], f"the {seq.n_frames - seq.n_fit} future frames"),
+        ):
+            if clip:
+                fps, repeat = report.playback(len(clip))
+                report.write_video(out / name, [f for f in clip for _ in range(repeat)], fps)
+                caption = (
+                    f"{what}, ground truth (left) | prediction (right) in every view, over the ground plane; "
+                    f"played at {fps / repeat:.3g} frames per second ({len(clip) * repeat / fps:.1f} s), the "
+                    f"sequence runs at {seq.fps:g} fps"
+                )
+                videos.append((out / name, caption))
+    scores = ctx.values["evaluate"]
+    sections = run_sections(
+        out,
+        scores,
+        dyn,
+        ctx.values["velocity"],
+        ctx.values["refine"][1],
+        ctx.values["anchors"],
+        cfg.recon,
+        cfg.physics,
+        seq.n_fit,
+        videos,
+    )
+    if cfg.recon.write_plys:
         colours = 1.0 / (1.0 + np.exp(-ctx.gaussians.to_numpy()["color_logits"]))
         report.write_frame_plys(out / "ply", list(pred.centres), "centres", colours)
         report.write_frame_plys(out / "ply", list(pred.anchors), "anchors")
+    rows = [(p.name, f"{p.stat().st_size / 1024:.0f} KiB") for p in sorted(out.iterdir()) if p.is_file()]
+    if cfg.recon.write_plys:
+        rows.append(("ply/", "per-frame point clouds: centres_<frame>.ply, anchors_<frame>.ply"))
+    rows.append(("../metrics.json", "every score and the identified parameters, strict JSON"))
+    sections.append(Section("Files beside this page", table(("file", "size / content"), rows)))
+    run = out.parent.name
+    subtitle = (
+        f"Sequence {seq.root} ({seq.layout} layout): {len(seq.cameras)} views, {seq.n_frames} frames at "
+        f"{seq.fps:g} fps, frames 0..{seq.n_fit - 1} fitted, {seq.n_fit}..{seq.n_frames - 1} predicted. "
+        f"Preset {cfg.preset}, method {cfg.method}, physics.contact = {cfg.physics.contact}, seed {cfg.seed}."
+    )
+    verdict = judge(scores, dyn, cfg.recon, cfg.physics)
+    write_report(out / "report.html", f"sgdr run {run}", verdict, sections, subtitle)
 
 
 def report_load(ctx: RunContext, out: Path) -> list[str]:

@@ -15,14 +15,14 @@ import drjit as dr
 import numpy as np
 
 from sgdr.arrays import array3_to_points
-from sgdr.identify.common import posed, render_rgb_numpy
+from sgdr.identify.common import posed, render_rgba_numpy
 
 
 @dataclass
 class Prediction:
     anchors: np.ndarray  # [T, N_A, 3] anchor positions per frame, world, scene units
     centres: np.ndarray  # [T, M, 3] Gaussian centres per frame, world, scene units
-    images: np.ndarray  # [T, V, H, W, 3] uint8 renders per frame and view (empty if not rendered)
+    images: np.ndarray  # [T, V, H, W, 4] uint8 RGBA renders per frame and view (empty if not rendered)
 
 
 def physical_params(model, physics_cfg, values: dict):
@@ -72,7 +72,8 @@ def predict(
     """Forward rollout of `n_frames` frames from rest with `params` (its v0), bound and rendered.
 
     Returns anchors [T, N_A, 3], centres [T, M, 3] and, if render_views, images
-    [T, V, H, W, 3] uint8 for every camera in `cameras`.
+    [T, V, H, W, 4] uint8 for every camera in `cameras`: RGB over black and the accumulated
+    opacity (the report composites a ground behind it).
     """
     from sgdr.physics import SimState, rollout
 
@@ -101,7 +102,7 @@ def predict(
             centres.append(array3_to_points(means))
             if render_views:
                 g = posed(gaussians.detach(), means)
-                views = [render_rgb_numpy(g, cam, render_cfg) for cam in cameras]
+                views = [render_rgba_numpy(g, cam, render_cfg) for cam in cameras]
                 images.append((np.stack(views) * 255.0 + 0.5).astype(np.uint8))
     imgs = np.stack(images) if images else np.zeros((0,), np.uint8)
     return Prediction(np.stack(anchors), np.stack(centres), imgs)

@@ -11,7 +11,8 @@ outputs verify, `recon.force=true` redoes them, a damaged output is redone (see
 setting redoes that stage and everything after it; a field is left out of a key only by the
 explicit lists below (`RECON_NEVER_IN_KEYS`, `RECON_STAGE_FIELDS`), so a forgotten field
 errs on the side of recomputing.
-The run folder also gets `config.yaml`, `metrics.json` and an MLflow run (`sgdr.tracking`).
+The run folder also gets `config.yaml`, `metrics.json` (strict JSON, `run_metrics`) and an MLflow run
+(`sgdr.tracking`).
 
 Stage outputs (all under the run folder):
   static/gaussians.ply          3DGS PLY of the static fit (frame 0)
@@ -19,9 +20,10 @@ Stage outputs (all under the run folder):
   refine/gaussians.ply          appearance refined at the IDW positions; losses.json
   velocity/velocity.json        v0 [3], loss per step, frames used
   dynamics/params.npz, dynamics.json   identified log10 k_i, κ, friction, restitution, n_t, losses
-  predict/trajectory.npz        anchors [T, N_A, 3], centres [T, M, 3]; images.npy [T, V, H, W, 3] uint8
-  evaluate/scores.json          fit/future CD, EMD, PSNR, SSIM, baseline (also metrics.json)
-  report/                       side_by_side.mp4, losses.png, stiffness.png, ply/
+  predict/trajectory.npz        anchors [T, N_A, 3], centres [T, M, 3]; images.npy [T, V, H, W, 4] uint8 RGBA
+  evaluate/scores.json          fit/future CD, EMD, PSNR, SSIM, baseline (also metrics.json); null + reason if missing
+  report/                       report.html (verdict, warnings, curves, videos; self-contained), side_by_side.mp4,
+                                future.mp4, metric_curves.png, losses.png, stiffness.png, ply/
   asset/                        what `experiments/simulate.py` loads (sgdr.pipeline.asset)
 """
 
@@ -86,7 +88,14 @@ PIPELINE: tuple[Stage, ...] = (
         reads_sequence=False,
     ),
     Stage("evaluate", ("recon",), ("predict",), flow.evaluate_produce, flow.evaluate_load),
-    Stage("report", ("recon",), ("predict", "evaluate", "refine"), flow.report_produce, flow.report_load, seeded=False),
+    Stage(
+        "report",
+        ("recon", "physics"),
+        ("predict", "evaluate", "refine", "anchors", "velocity", "dynamics"),
+        flow.report_produce,
+        flow.report_load,
+        seeded=False,
+    ),
     Stage(
         "asset",
         ("physics", "anchors"),
@@ -299,37 +308,54 @@ def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> Run
     claim_run_dir(run_dir, seq_root, seq_hash)
     with RunTracker(run_dir, cfg, cfg.tracking, run_name=name) as tracker:
         out = _run_stages(cfg, seq, seq_hash, run_dir, tracker, progress)
-        metrics = dict(out.stages["evaluate"].value)
+        metrics = run_metrics(cfg, seq_root, out.stages, t_sequence, t_start)
         dyn = out.stages["dynamics"].value
-        metrics.update(
-            {
-                "sequence_name": sequence_name(cfg),
-                "preset": cfg.preset,
-                "seed": cfg.seed,
-                "sequence": str(seq_root),
-                "dynamic_loss_first_pass": dyn["pass_losses"][0] if dyn["pass_losses"] else None,
-                "dynamic_loss_last_pass": dyn["pass_losses"][-1] if dyn["pass_losses"] else None,
-                "dynamic_eval_loss_initial": dyn["eval_loss_initial"],
-                "dynamic_eval_loss_final": dyn["eval_loss_final"],
-                "identified": {
-                    "log10_k_mean": float(np.mean(dyn["log10_k"])),
-                    "log10_k_std": float(np.std(dyn["log10_k"])),
-                    "kappa": dyn["kappa"],
-                    "friction": dyn["friction"],
-                    "restitution": dyn["restitution"],
-                    "v0": list(out.stages["velocity"].value["v0"]),
-                },
-                "stages_skipped": [n for n, r in out.stages.items() if r.skipped],
-                "stage_seconds": {"sequence": t_sequence, **{n: r.seconds for n, r in out.stages.items()}},
-                "minutes": (time.time() - t_start) / 60.0,
-            }
-        )
         for i, loss in enumerate(dyn["pass_losses"]):
             tracker.log_metrics({"dynamic_pass_loss": loss}, step=i)
         tracker.finish(metrics)
         tracker.log_artifact(run_dir / "report", "report")
         out.metrics = metrics
     return out
+
+
+def run_metrics(cfg, seq_root: Path, stages: dict[str, StageResult], t_sequence: float, t_start: float) -> dict:
+    """What metrics.json holds: the evaluate stage's scores, the run's identity, the dynamic
+    losses, the identified parameters and the timings; strict JSON (a value that is not a
+    finite number is null, with the reason in `missing`)."""
+    from sgdr.evaluate.score import strict_json
+
+    scores = dict(stages["evaluate"].value)
+    missing = dict(scores.pop("missing", {}))
+    dyn = stages["dynamics"].value
+    passes = dyn["pass_losses"]
+    if not passes:
+        for key in ("dynamic_loss_first_pass", "dynamic_loss_last_pass"):
+            missing[key] = "no dynamic pass ran (recon.iterations = 0)"
+    metrics = {
+        **scores,
+        "sequence_name": sequence_name(cfg),
+        "preset": cfg.preset,
+        "seed": cfg.seed,
+        "sequence": str(seq_root),
+        "dynamic_loss_first_pass": passes[0] if passes else None,
+        "dynamic_loss_last_pass": passes[-1] if passes else None,
+        "dynamic_eval_loss_initial": dyn["eval_loss_initial"],
+        "dynamic_eval_loss_final": dyn["eval_loss_final"],
+        "identified": {
+            "log10_k_mean": float(np.mean(dyn["log10_k"])),
+            "log10_k_std": float(np.std(dyn["log10_k"])),
+            "kappa": dyn["kappa"],
+            "friction": dyn["friction"],
+            "restitution": dyn["restitution"],
+            "v0": list(stages["velocity"].value["v0"]),
+        },
+        "stages_skipped": [n for n, r in stages.items() if r.skipped],
+        "stage_seconds": {"sequence": t_sequence, **{n: r.seconds for n, r in stages.items()}},
+        "minutes": (time.time() - t_start) / 60.0,
+    }
+    metrics = strict_json(metrics, missing)
+    metrics["missing"] = missing
+    return metrics
 
 
 class RunInterrupted(Exception):

@@ -123,6 +123,28 @@ def test_a_sequence_without_ground_truth_is_reported_not_nan(tmp_path):
     assert f"{metrics['future_psnr']:.1f} dB" in state["verdict_text"]
 
 
+@pytest.mark.parametrize("layout", ["spring_gaus", "pac_nerf"])
+def test_foreign_layouts_reconstruct(tmp_path, layout):
+    """A Spring-Gaus or PAC-NeRF folder given as `sequence=` runs end to end, named after it."""
+    seq = tmp_path / f"my_{layout}"
+    shutil.copytree(Path(__file__).parent / "data" / layout, seq)
+    cfg = OmegaConf.to_object(
+        compose(
+            [
+                "preset=tiny",
+                f"sequence={seq}",
+                f"recon.output_dir={tmp_path / 'outputs'}",
+                "tracking.enabled=false",
+                "recon.eval_emd=false",
+            ]
+        )
+    )
+    out = run_pipeline(cfg, progress=False)
+    assert out.run_dir.name == f"my_{layout}_tiny_s0"
+    metrics = strict_load(out.run_dir / "metrics.json")
+    assert metrics["sequence_name"] == f"my_{layout}" and np.isfinite(metrics["fit_psnr"])
+
+
 def test_rerun_skips_and_corruption_is_redone(tiny_run):
     overrides, cfg, out = tiny_run
     again = run_pipeline(cfg, progress=False)

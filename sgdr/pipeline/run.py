@@ -200,6 +200,7 @@ def ensure_sequence(cfg, generate_if_missing: bool = True) -> Path:
     `sequence=<path>` to use it anyway, or delete it to regenerate.
     """
     from sgdr.data import load_sequence
+    from sgdr.data.sequence import SequenceError
 
     if not cfg.sequence and cfg.synth.object == "all":
         raise ConfigError(
@@ -207,25 +208,31 @@ def ensure_sequence(cfg, generate_if_missing: bool = True) -> Path:
             "`-m synth.object=torus,cross,...` (make reproduce)"
         )
     path = sequence_path(cfg)
+    if cfg.sequence:  # the user's folder, in any layout sgdr reads (an error names what is missing)
+        from sgdr.data.layouts import detect_layout
+
+        if not path.is_dir():
+            raise SequenceError(f"sequence={cfg.sequence}: folder {path} does not exist")
+        detect_layout(path)
+        return path
     if not (path / "sequence.json").exists():
-        if cfg.sequence or not generate_if_missing:
-            raise FileNotFoundError(f"no sequence at {path} (sequence.json missing); run `make data` or set sequence=")
+        if not generate_if_missing:
+            raise SequenceError(f"no sequence at {path} (sequence.json missing); run `make data` or set sequence=")
         from sgdr.synth.generate import generate_sequence
 
         log.info("generating %s at preset %s into %s", cfg.synth.object, cfg.preset, path)
         return Path(generate_sequence(cfg.synth, path, seed=cfg.seed, progress=True))
-    if not cfg.sequence:
-        from sgdr.synth.generate import is_complete
+    from sgdr.synth.generate import is_complete
 
-        if not is_complete(path, cfg.synth):
-            seq = load_sequence(path)
-            cam = seq.cameras[0]
-            raise ValueError(
-                f"{path} ({len(seq.cameras)} views at {cam.width}px, {seq.n_frames} frames) does not match preset "
-                f"{cfg.preset!r} (synth.n_views={cfg.synth.n_views}, synth.resolution={cfg.synth.resolution}, "
-                f"synth.n_frames={cfg.synth.n_frames}, synth.object={cfg.synth.object}): it was generated with other "
-                f"settings. Delete it to regenerate, or pass sequence={path} to use it as it is."
-            )
+    if not is_complete(path, cfg.synth):
+        seq = load_sequence(path)
+        cam = seq.cameras[0]
+        raise SequenceError(
+            f"{path} ({len(seq.cameras)} views at {cam.width}px, {seq.n_frames} frames) does not match preset "
+            f"{cfg.preset!r} (synth.n_views={cfg.synth.n_views}, synth.resolution={cfg.synth.resolution}, "
+            f"synth.n_frames={cfg.synth.n_frames}, synth.object={cfg.synth.object}): it was generated with other "
+            f"settings. Delete it to regenerate, or pass sequence={path} to use it as it is."
+        )
     return path
 
 

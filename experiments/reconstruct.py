@@ -5,8 +5,9 @@
 
 Uses `<data_dir>/<synth.object>` unless `sequence=` is given, generating it at the preset
 when missing. Outputs go to `<recon.output_dir>/<run name>/` (stages, report, asset,
-config.yaml, metrics.json) and to the MLflow store (`tracking.uri`). A rerun skips verified
-completed stages. The last line printed is one JSON object with the headline scores.
+config.yaml, metrics.json, reconstruct.log) and to one MLflow run per run folder in the store
+(`tracking.uri`, see sgdr.tracking). A rerun skips verified completed stages and continues the
+same MLflow run. The last line printed is one JSON object with the headline scores.
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ HEADLINE = (
 def main(cfg: DictConfig) -> None:
     sgdr.backend.init(cfg.backend, cfg.threads or None)
     from sgdr.pipeline.run import run_pipeline
+    from sgdr.tracking import resolve_uri
 
     logging.getLogger("sgdr").setLevel(logging.INFO)
     out = run_pipeline(OmegaConf.to_object(cfg), progress=True)
@@ -53,7 +55,8 @@ def main(cfg: DictConfig) -> None:
     print(f"plots:        {report / 'losses.png'}, {report / 'stiffness.png'}")
     print(f"PLYs:         {report / 'ply'}/centres_*.ply, anchors_*.ply")
     print(f"asset:        {out.run_dir / 'asset'} (python experiments/simulate.py recon.simulate.asset=...)")
-    print(f"MLflow store: {cfg.tracking.uri} (mlflow ui --backend-store-uri {cfg.tracking.uri})")
+    store = resolve_uri(cfg.tracking.uri)  # a relative SQLite path is the repository root's
+    print(f"MLflow store: {store} (mlflow ui --backend-store-uri {store})")
     print(json.dumps({"demo": cfg.synth.object, **{k: out.metrics.get(k) for k in HEADLINE}}))
 
 

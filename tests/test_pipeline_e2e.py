@@ -65,12 +65,26 @@ def test_run_folder_holds_the_record(tiny_run):
     ):
         assert (d / "report" / name).stat().st_size > 0, name
     assert (d / "asset" / "asset.json").exists()
+    # the record of the run: its log in the run folder, one MLflow run with the settings that act
+    from mlflow.tracking import MlflowClient
+
+    assert (d / "reconstruct.log").read_text().startswith("==== ")
+    state = json.loads((d / "mlflow_run.json").read_text())
+    run = MlflowClient(tracking_uri=state["tracking_uri"]).get_run(state["run_id"])
+    assert run.info.status == "FINISHED" and run.data.tags["mlflow.source.git.commit"]
+    assert "recon.iterations" in run.data.params and "physics.springs" in run.data.params
+    assert not [k for k in run.data.params if k.startswith(("oracle.", "recon.simulate.", "tracking."))]
+    artifacts = {a.path for a in MlflowClient(tracking_uri=state["tracking_uri"]).list_artifacts(run.info.run_id)}
+    assert {"asset", "report", "metrics.json", "config.yaml", "reconstruct.log"} <= artifacts
+    assert metrics["provenance"]["mlflow_run_id"] == state["run_id"]
 
 
 def test_rerun_skips_and_corruption_is_redone(tiny_run):
     overrides, cfg, out = tiny_run
+    run_id = json.loads((out.run_dir / "mlflow_run.json").read_text())["run_id"]
     again = run_pipeline(cfg, progress=False)
     assert set(again.metrics["stages_skipped"]) == set(STAGES)
+    assert json.loads((out.run_dir / "mlflow_run.json").read_text())["run_id"] == run_id  # the same MLflow run
     assert again.metrics["future_cd"] == out.metrics["future_cd"]
     params = out.run_dir / "dynamics" / "params.npz"
     params.write_bytes(params.read_bytes()[:-10])  # truncated: a partial write

@@ -154,6 +154,15 @@ def test_ctrl_c_ends_killed_an_exception_failed(tmp_path):
         with RunTracker(tmp_path / "b", _Cfg(), tracking) as failed:
             raise RuntimeError("boom")
     assert client.get_run(failed.run_id).info.status == "FAILED"
+    # Ctrl-C inside a Dr.Jit custom op reaches us wrapped in a RuntimeError: still KILLED
+    with pytest.raises(RuntimeError):
+        with RunTracker(tmp_path / "c", _Cfg(), tracking, log_file="reconstruct.log") as wrapped:
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as exc:
+                raise RuntimeError("drjit.custom(...): error while performing a custom operation") from exc
+    assert client.get_run(wrapped.run_id).info.status == "KILLED"
+    assert "KeyboardInterrupt" in (tmp_path / "c" / "reconstruct.log").read_text()  # the traceback, in the log
     # the interrupted run is resumed as the same run, RUNNING while it goes, FINISHED after
     with RunTracker(tmp_path / "a", _Cfg(), tracking) as again:
         assert client.get_run(again.run_id).info.status == "RUNNING"

@@ -168,6 +168,18 @@ def ensure_store(tracking: TrackingConfig, base: Path | None = None) -> str | No
     return client.create_experiment(tracking.experiment, artifact_location=artifact_location)
 
 
+def _interrupted(exc: BaseException | None) -> bool:
+    """Was the run stopped rather than broken: a KeyboardInterrupt (Ctrl-C) or SystemExit, also
+    when wrapped in another exception (a Dr.Jit custom op turns one into a RuntimeError)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, (KeyboardInterrupt, SystemExit)):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 class RunTracker:
     """Records one run. Use as a context manager:
 
@@ -241,10 +253,14 @@ class RunTracker:
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is None:
             status = "FINISHED"
-        elif issubclass(exc_type, Exception):
-            status = "FAILED"
-        else:  # KeyboardInterrupt (Ctrl-C), SystemExit: stopped, not broken
+        elif _interrupted(exc):  # Ctrl-C (possibly wrapped, e.g. by a Dr.Jit custom op), SystemExit
             status = "KILLED"
+        else:
+            status = "FAILED"
+        if self._handler is not None and exc_type is not None:  # the traceback into the log file only
+            self._handler.handle(
+                log.makeRecord(log.name, logging.ERROR, __file__, 0, "run %s", (status,), (exc_type, exc, tb))
+            )
         if self._client is not None and self.run_id is not None:
             log.info("MLflow run %s (%s): %s", self.run_id, self.tracking_uri, status)
         self._close_log()

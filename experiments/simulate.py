@@ -9,7 +9,7 @@ v0=[vx,vy,vz], n_frames, n_substeps, max_substeps; cameras=sequence|orbit. The r
 asset's physics settings (physics.* of the command line do not act).
 
 Each simulation gets its own folder, `<asset>/../simulate/<tag>` with the tag named after the
-edits (e.g. `stiffness_scale-0.1_friction-0`), a new `<tag>-2`, ... when that folder holds
+edits (e.g. `friction-0_stiffness_scale-0.1`), a new `<tag>-2`, ... when that folder holds
 another simulation; an explicit recon.simulate.tag / out_dir holding another simulation is
 refused unless recon.simulate.overwrite=true (`sgdr.pipeline.asset.simulation_dir`). It holds
 `video.mp4` (all views tiled, or the orbit), `trajectory.npz` (anchors, centres, velocities)

@@ -111,7 +111,7 @@ def test_one_mlflow_run_across_resumes_with_the_log_in_the_run_folder(tmp_path):
     assert "after the run" not in (out / "reconstruct.log").read_text()
 
 
-def test_commit_is_a_tag_and_in_metrics(tmp_path):
+def test_commit_is_a_tag_and_in_metrics(tmp_path, monkeypatch):
     import subprocess
 
     from mlflow.tracking import MlflowClient
@@ -126,6 +126,15 @@ def test_commit_is_a_tag_and_in_metrics(tmp_path):
     assert tags["sgdr.git.dirty"] in ("true", "false", "none")
     prov = json.loads((tmp_path / "run" / "metrics.json").read_text())["provenance"]
     assert prov["git_commit"] == expected and prov["mlflow_run_id"] == run.run_id
+    # resumed on other code: the tag follows, the list keeps both
+    import sgdr.tracking.tracker as tracker_module
+
+    monkeypatch.setattr(tracker_module, "git_provenance", lambda *a: {"git_commit": "0" * 40, "git_dirty": False})
+    with RunTracker(tmp_path / "run", _Cfg(), tracking) as again:
+        pass
+    tags = MlflowClient(tracking_uri=uri).get_run(again.run_id).data.tags
+    assert again.run_id == run.run_id and tags["mlflow.source.git.commit"] == "0" * 40
+    assert tags["sgdr.git.commits"] == f"{expected},{'0' * 40}"
 
 
 def test_commit_unknown_without_git(tmp_path, monkeypatch):

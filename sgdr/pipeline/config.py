@@ -16,7 +16,7 @@ class SimulateConfig:
     out_dir: str = ""  # where videos go ("" = <asset>/../simulate/<tag>); an existing folder holding
     #                    another simulation is refused unless overwrite=true
     tag: str = ""  # name of this simulation's output folder ("" = from the edits, e.g.
-    #                stiffness_scale-0.1_friction-0; a new folder -2, -3, ... if that one holds another)
+    #                friction-0_stiffness_scale-0.1; a new folder -2, -3, ... if that one holds another)
     overwrite: bool = False  # replace an explicit tag's / out_dir's folder that holds another simulation
     n_frames: int = 0  # frames to simulate (0 = the sequence's)
     n_substeps: int = 0  # n_t (0 = the value reached in training); the substeps of this run, not physics.n_substeps

@@ -9,7 +9,7 @@ appended to `<out_dir>/<log_file>` (e.g. `reconstruct.log`), one header line per
 MLflow (`TrackingConfig.enabled`) gets the config sections the caller names as parameters
 (only the settings that act on the run), metrics (with a step for curves), artifacts, and the
 git commit as the tag `mlflow.source.git.commit` (plus `sgdr.git.dirty`; "unknown" without git
-or .git). One run folder is one MLflow run across resumes: its id is kept in
+or .git; a resume on another commit sets the tag to the latest and lists all in `sgdr.git.commits`). One run folder is one MLflow run across resumes: its id is kept in
 `<out_dir>/mlflow_run.json` and the run is reopened (RUNNING again, then FINISHED) by the next
 invocation on the same folder. A new run is started instead, and the log says why, when the
 store no longer has that run, the store or experiment changed, or a setting that acts on the
@@ -344,6 +344,10 @@ class RunTracker:
                     self.run_id, self.resumed = previous, True
                     self._client.update_run(previous, status="RUNNING")
                     params = {k: v for k, v in params.items() if k not in old.data.params}
+                    commits = old.data.tags.get("sgdr.git.commits") or old.data.tags.get("mlflow.source.git.commit")
+                    if commits and self.provenance["git_commit"] not in commits.split(","):
+                        # resumed on other code: the tag is the latest commit, this lists them all
+                        tags["sgdr.git.commits"] = f"{commits},{self.provenance['git_commit']}"
                     if changed:
                         tags["sgdr.resume_changes"] = "; ".join(f"{k}: {a} -> {b}" for k, (a, b) in changed.items())
                     log.info("MLflow run %s reopened (resuming %s)", previous, self.out_dir)

@@ -101,6 +101,7 @@ def momentum_check(
     speed_t = np.linalg.norm(along(com_v), axis=1)
     gain = float(np.linalg.norm(springs_dv, axis=1).max())
     gain_t = float(np.linalg.norm(along(springs_dv), axis=1).max())
+    gain_n = float(np.abs(springs_dv @ n).max())
     warning = None
     if gain > tolerance:
         cause = (
@@ -110,10 +111,10 @@ def momentum_check(
             else f"physics.springs={springs} should conserve momentum (a bug, or rounding over a very long rollout)"
         )
         warning = (
-            f"the edited rollout gains momentum without an external cause: its springs changed the centre of mass's "
-            f"velocity by up to {gain:.2f} scene units/s ({gain_t:.2f} along the ground), beyond gravity and the "
-            f"ground (centre of mass {speed_t[-1]:.2f} scene units/s along the ground at the end, {speed_t[0]:.2f} at "
-            f"the start): {cause}"
+            f"the edited rollout gains momentum without an external cause: its springs pushed the centre of mass "
+            f"by up to {gain_t:.2f} scene units/s along the ground (it moves {speed_t[-1]:.2f} along the ground at the "
+            f"end, {speed_t[0]:.2f} at the start) and {gain_n:.2f} along the ground's normal (absorbed by the ground "
+            f"while in contact), beyond gravity and the ground: {cause}"
         )
     return {
         "gains_momentum": warning is not None,
@@ -121,6 +122,7 @@ def momentum_check(
         "springs": springs,
         "springs_dv_max": gain,
         "springs_dv_max_along_ground": gain_t,
+        "springs_dv_max_along_normal": gain_n,
         "springs_dv_end": springs_dv[-1].tolist(),
         "ground_dv_end": ground_dv[-1].tolist(),
         "ground_dv_end_along_ground": float(np.linalg.norm(along(ground_dv[-1]))),

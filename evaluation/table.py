@@ -43,7 +43,7 @@ def row(metrics: dict) -> list[str]:
         else "-"
     )
     return [
-        str(metrics.get("object", "?")),
+        str(metrics.get("sequence_name", metrics.get("object", "?"))),
         *(_fmt(fmt, metrics.get(key)) for _, key, fmt in COLUMNS),
         params,
         _fmt("{:.1f}", metrics.get("minutes")),

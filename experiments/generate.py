@@ -29,18 +29,28 @@ log = logging.getLogger("generate")
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg) -> None:
+    from sgdr.cli import user_errors
+    from sgdr.config import validate
+
+    with user_errors():
+        validate(OmegaConf.to_object(cfg))
+        sgdr.backend.init(cfg.backend, cfg.threads or None)
+        _generate(cfg)
+
+
+def _generate(cfg) -> None:
     from dataclasses import replace
 
     from tqdm import tqdm
 
+    from sgdr.checks import ConfigError
     from sgdr.synth.generate import generate_sequence, is_complete
     from sgdr.synth.objects import OBJECTS
 
-    sgdr.backend.init(cfg.backend, cfg.threads or None)
     synth = OmegaConf.to_object(cfg.synth)
     names = list(OBJECTS) if synth.object == "all" else [synth.object]
     if synth.out and len(names) > 1:
-        raise ValueError("synth.out names one sequence folder; leave it empty with synth.object=all")
+        raise ConfigError("synth.out names one sequence folder; leave it empty with synth.object=all")
     bar = tqdm(names, desc="benchmark", unit="object", disable=len(names) == 1)
     for name in bar:
         one = replace(synth, object=name)

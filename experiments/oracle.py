@@ -31,47 +31,52 @@ sgdr.config.register()
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
-    sgdr.backend.init(cfg.backend, cfg.threads or None)
-    from sgdr.data import load_sequence
-    from sgdr.pipeline.run import default_run_name, ensure_sequence
-    from sgdr.studies.oracle import oracle_study, plot_oracle
+    from sgdr.cli import user_errors
+    from sgdr.config import validate
 
-    logging.getLogger("sgdr").setLevel(logging.INFO)
-    c = OmegaConf.to_object(cfg)
-    seq = load_sequence(ensure_sequence(c))
-    result = oracle_study(
-        seq, c.anchors.n_anchors, c.anchors.n_k, c.physics, c.recon, c.oracle, seed=c.seed, progress=True
-    )
-    out = Path(c.recon.output_dir) / f"{default_run_name(c)}_oracle"
-    out.mkdir(parents=True, exist_ok=True)
-    summary = {"sequence": str(seq.root), "contact": c.physics.contact, **result.summary()}
-    record = {
-        **summary,
-        "track_error": result.track_error.tolist(),
-        "cd": result.cd.tolist(),
-        "baseline_cd": {k: v.tolist() for k, v in result.baseline_cd.items()},
-        "baseline_track_error": {k: v.tolist() for k, v in result.baseline_track_error.items()},
-        "losses": result.losses,
-        "k_offset_scan": result.scan,
-        "ensemble": result.ensemble,
-        "config": OmegaConf.to_container(cfg, resolve=True),
-    }
-    (out / "oracle.json").write_text(json.dumps(record, indent=1))
-    np.save(out / "log10_k.npy", result.values["log10_k"])
-    np.savez_compressed(
-        out / "tracks.npz",
-        simulated=result.simulated.astype(np.float32),
-        tracks=result.tracks.astype(np.float32),
-        anchor_index=result.anchor_index,
-    )
-    plot_oracle(result, out / "oracle.png", title=f"{seq.root.name}: spring-mass fitted to the particle tracks")
-    for row in result.scan:
-        print(
-            f"log10 k {row['offset']:+.3f}: fit track error {row['fit_track_error']:.4f}, "
-            f"future {row['future_track_error']:.4f}"
+    with user_errors():
+        sgdr.backend.init(cfg.backend, cfg.threads or None)
+        from sgdr.data import load_sequence
+        from sgdr.pipeline.run import default_run_name, ensure_sequence
+        from sgdr.studies.oracle import oracle_study, plot_oracle
+
+        logging.getLogger("sgdr").setLevel(logging.INFO)
+        c = OmegaConf.to_object(cfg)
+        validate(c)
+        seq = load_sequence(ensure_sequence(c))
+        result = oracle_study(
+            seq, c.anchors.n_anchors, c.anchors.n_k, c.physics, c.recon, c.oracle, seed=c.seed, progress=True
         )
-    print(f"oracle: {out / 'oracle.json'}, {out / 'oracle.png'}")
-    print(json.dumps({k: v for k, v in summary.items() if not isinstance(v, dict)}))
+        out = Path(c.recon.output_dir) / f"{default_run_name(c)}_oracle"
+        out.mkdir(parents=True, exist_ok=True)
+        summary = {"sequence": str(seq.root), "contact": c.physics.contact, **result.summary()}
+        record = {
+            **summary,
+            "track_error": result.track_error.tolist(),
+            "cd": result.cd.tolist(),
+            "baseline_cd": {k: v.tolist() for k, v in result.baseline_cd.items()},
+            "baseline_track_error": {k: v.tolist() for k, v in result.baseline_track_error.items()},
+            "losses": result.losses,
+            "k_offset_scan": result.scan,
+            "ensemble": result.ensemble,
+            "config": OmegaConf.to_container(cfg, resolve=True),
+        }
+        (out / "oracle.json").write_text(json.dumps(record, indent=1))
+        np.save(out / "log10_k.npy", result.values["log10_k"])
+        np.savez_compressed(
+            out / "tracks.npz",
+            simulated=result.simulated.astype(np.float32),
+            tracks=result.tracks.astype(np.float32),
+            anchor_index=result.anchor_index,
+        )
+        plot_oracle(result, out / "oracle.png", title=f"{seq.root.name}: spring-mass fitted to the particle tracks")
+        for row in result.scan:
+            print(
+                f"log10 k {row['offset']:+.3f}: fit track error {row['fit_track_error']:.4f}, "
+                f"future {row['future_track_error']:.4f}"
+            )
+        print(f"oracle: {out / 'oracle.json'}, {out / 'oracle.png'}")
+        print(json.dumps({k: v for k, v in summary.items() if not isinstance(v, dict)}))
 
 
 if __name__ == "__main__":

@@ -1,13 +1,16 @@
-"""Reconstruct a sequence, predict its future, evaluate and report (issue 6).
+"""Reconstruct a sequence, predict its future, evaluate and report.
 
-    python experiments/reconstruct.py preset=small synth.object=torus
-    python experiments/reconstruct.py sequence=data/torus recon.mode=full recon.force=true
+    python experiments/reconstruct.py                          # = make demo: the torus, small preset
+    python experiments/reconstruct.py sequence=/path/my_banana  # your own sequence
+    python experiments/reconstruct.py preset=tiny synth.object=apple recon.force=true
 
-Uses `<data_dir>/<synth.object>` unless `sequence=` is given, generating it at the preset
-when missing. Outputs go to `<recon.output_dir>/<run name>/` (stages, report, asset,
-config.yaml, metrics.json, reconstruct.log) and to one MLflow run per run folder in the store
-(`tracking.uri`, see sgdr.tracking). A rerun skips verified completed stages and continues the
-same MLflow run. The last line printed is one JSON object with the headline scores.
+Uses `sequence=` when given, else `<data_dir>/<synth.object>` (generated at the preset when
+missing). Every config value and every image is checked first (errors name the key or the
+file). Outputs go to `<recon.output_dir>/<sequence>_<preset>_s<seed>/` (stages, report,
+asset, config.yaml, metrics.json, reconstruct.log), never into a folder holding another
+sequence, and to one MLflow run per run folder in the store (`tracking.uri`, see
+sgdr.tracking). A rerun skips verified completed stages, resumes an interrupted one and
+continues the same MLflow run. The last line printed is one JSON object with the headline scores.
 """
 
 from __future__ import annotations
@@ -42,12 +45,15 @@ HEADLINE = (
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
-    sgdr.backend.init(cfg.backend, cfg.threads or None)
-    from sgdr.pipeline.run import run_pipeline
+    from sgdr.cli import user_errors
     from sgdr.tracking import resolve_uri
 
-    logging.getLogger("sgdr").setLevel(logging.INFO)
-    out = run_pipeline(OmegaConf.to_object(cfg), progress=True)
+    with user_errors():
+        sgdr.backend.init(cfg.backend, cfg.threads or None)
+        from sgdr.pipeline.run import run_pipeline
+
+        logging.getLogger("sgdr").setLevel(logging.INFO)
+        out = run_pipeline(OmegaConf.to_object(cfg), progress=True)
     report = out.run_dir / "report"
     print(f"run folder:   {out.run_dir}")
     print(f"metrics:      {out.run_dir / 'metrics.json'}")
@@ -57,7 +63,15 @@ def main(cfg: DictConfig) -> None:
     print(f"asset:        {out.run_dir / 'asset'} (python experiments/simulate.py recon.simulate.asset=...)")
     store = resolve_uri(cfg.tracking.uri)  # a relative SQLite path is the repository root's
     print(f"MLflow store: {store} (mlflow ui --backend-store-uri {store})")
-    print(json.dumps({"demo": cfg.synth.object, **{k: out.metrics.get(k) for k in HEADLINE}}))
+    print(
+        json.dumps(
+            {
+                "sequence": out.metrics["sequence_name"],
+                "run": str(out.run_dir),
+                **{k: out.metrics.get(k) for k in HEADLINE},
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

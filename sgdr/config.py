@@ -10,19 +10,28 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from sgdr.anchors import config as anchors_config
 from sgdr.anchors.config import AnchorConfig
+from sgdr.checks import ConfigError, any_text, choice, non_empty_text, non_negative, section_problems
+from sgdr.physics import config as physics_config
 from sgdr.physics.config import PhysicsConfig
+from sgdr.pipeline import config as recon_config
 from sgdr.pipeline.config import ReconConfig
+from sgdr.render import config as render_config
 from sgdr.render.config import RenderConfig
+from sgdr.static_fit import config as static_fit_config
 from sgdr.static_fit.config import StaticFitConfig
+from sgdr.studies import config as oracle_config
 from sgdr.studies.config import OracleConfig
+from sgdr.synth import config as synth_config
 from sgdr.synth.config import SynthConfig
+from sgdr.tracking import config as tracking_config
 from sgdr.tracking.config import TrackingConfig
 
 
 @dataclass
 class Config:
-    preset: str = "tiny"  # scale preset name: tiny | small | paper (set by the preset group)
+    preset: str = "small"  # scale preset name: tiny | small | paper (set by the preset group)
     method: str = "spring_gaus"  # method name: spring_gaus | official (set by the method group)
     backend: str = "llvm"  # "llvm" (CPU) | "cuda" (GPU)
     threads: int = 0  # Dr.Jit thread-pool size; 0 = all cores
@@ -37,6 +46,111 @@ class Config:
     recon: ReconConfig = field(default_factory=ReconConfig)
     oracle: OracleConfig = field(default_factory=OracleConfig)  # experiments/oracle.py (sgdr.studies.oracle)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
+
+
+# ---------------------------------------------------------------------------- checks
+# Allowed values: the top-level fields here, each section's in its own module (`CHECKS`), the
+# nested sections by their dotted path. `validate` applies every one of them.
+CHECKS = {
+    "preset": any_text("the preset's name, set by the preset group"),
+    "method": any_text("the method's name, set by the method group"),
+    "backend": choice("sgdr.backend:_VARIANTS"),
+    "threads": non_negative("0: every core"),
+    "seed": non_negative(),
+    "data_dir": non_empty_text(),
+    "sequence": any_text("a sequence folder; empty: <data_dir>/<synth.object>"),
+}
+SECTION_CHECKS = {
+    "physics": physics_config.CHECKS,
+    "anchors": anchors_config.CHECKS,
+    "render": render_config.CHECKS,
+    "static_fit": static_fit_config.CHECKS,
+    "synth": synth_config.CHECKS,
+    "synth.effects": synth_config.EFFECTS_CHECKS,
+    "recon": recon_config.CHECKS,
+    "recon.simulate": recon_config.SIMULATE_CHECKS,
+    "oracle": oracle_config.CHECKS,
+    "tracking": tracking_config.CHECKS,
+}
+
+
+def _in_k_bounds(cfg) -> str | None:
+    r = cfg.recon
+    outside = [v for v in [cfg.physics.log10_k_init, *r.log10_k_grid] if not r.log10_k_min <= v <= r.log10_k_max]
+    if outside:
+        return (
+            f"physics.log10_k_init / recon.log10_k_grid hold {outside}, outside [recon.log10_k_min, "
+            f"recon.log10_k_max] = [{r.log10_k_min}, {r.log10_k_max}]"
+        )
+    return None
+
+
+# Rules between fields: each returns None or the error line (naming every key involved).
+RULES = (
+    lambda c: (
+        None
+        if c.anchors.n_k < c.anchors.n_anchors
+        else f"anchors.n_k={c.anchors.n_k} must be < anchors.n_anchors={c.anchors.n_anchors} (springs to other anchors)"
+    ),
+    lambda c: (
+        None
+        if c.anchors.n_b <= c.anchors.n_anchors
+        else f"anchors.n_b={c.anchors.n_b} must be <= anchors.n_anchors={c.anchors.n_anchors}"
+    ),
+    lambda c: (
+        None
+        if c.physics.max_substeps >= c.physics.n_substeps
+        else f"physics.max_substeps={c.physics.max_substeps} must be >= physics.n_substeps={c.physics.n_substeps}"
+    ),
+    lambda c: (
+        None
+        if c.recon.log10_k_min < c.recon.log10_k_max
+        else f"recon.log10_k_min={c.recon.log10_k_min} must be < recon.log10_k_max={c.recon.log10_k_max}"
+    ),
+    _in_k_bounds,
+    lambda c: (
+        None
+        if c.render.tile_size % c.render.pixels_per_thread == 0
+        else f"render.pixels_per_thread={c.render.pixels_per_thread} must divide render.tile_size={c.render.tile_size}"
+    ),
+    lambda c: (
+        None
+        if c.render.alpha_min < c.render.alpha_max
+        else f"render.alpha_min={c.render.alpha_min} must be < render.alpha_max={c.render.alpha_max}"
+    ),
+    lambda c: (
+        None
+        if c.synth.n_fit < c.synth.n_frames
+        else f"synth.n_fit={c.synth.n_fit} must be < synth.n_frames={c.synth.n_frames} (the rest is the future)"
+    ),
+    lambda c: (
+        None
+        if c.synth.hit_frame < c.synth.n_frames
+        else f"synth.hit_frame={c.synth.hit_frame} must be < synth.n_frames={c.synth.n_frames}"
+    ),
+)
+
+
+def validate(cfg) -> None:
+    """Check every config value (`CHECKS`, `SECTION_CHECKS`) and the rules between them (`RULES`)
+    before any work; raise one `ConfigError` listing every problem, each naming its key.
+
+    cfg: the composed config (a `Config` instance or a DictConfig).
+    """
+    problems = section_problems("", cfg, CHECKS)
+    for path, checks in SECTION_CHECKS.items():
+        section = cfg
+        for part in path.split("."):
+            section = getattr(section, part)
+        problems += section_problems(path, section, checks)
+    if not problems:  # the rules compare values that each passed their own check
+        problems = [p for rule in RULES if (p := rule(cfg))]
+    if problems:
+        lines = "\n".join(f"  {p}" for p in problems)
+        s = "s" if len(problems) > 1 else ""
+        raise ConfigError(
+            f"{len(problems)} config value{s} cannot work (fix them on the command line or in conf/):\n{lines}"
+        )
 
 
 def register() -> None:

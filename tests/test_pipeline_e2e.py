@@ -155,7 +155,7 @@ def test_drivers_run_on_the_tiny_preset(tiny_run):
     )
     assert rec.returncode == 0, rec.stderr[-2000:]
     last = json.loads(rec.stdout.strip().splitlines()[-1])
-    assert last["demo"] == "torus" and last["future_cd"] == pytest.approx(out.metrics["future_cd"], rel=1e-3)
+    assert last["sequence"] == "torus" and last["future_cd"] == pytest.approx(out.metrics["future_cd"], rel=1e-3)
     sim = subprocess.run(
         [
             sys.executable,
@@ -196,3 +196,46 @@ def test_drivers_run_on_the_tiny_preset(tiny_run):
     assert set(record["ensemble"]["offsets"]) <= set(cfg.oracle.k_offsets)
     with np.load(oracle_dir / "tracks.npz") as saved:
         assert saved["simulated"].shape == saved["tracks"].shape and saved["tracks"].shape[2] == 3
+
+
+def test_ctrl_c_says_how_to_resume(tiny_run):
+    """Ctrl-C in the middle of the dynamic stage: exit status 130 and one line saying what is
+    saved, no traceback; the same command then resumes and finishes."""
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    overrides, cfg, _ = tiny_run
+    root = Path(__file__).resolve().parent.parent
+    run = Path(cfg.recon.output_dir) / "interrupted"
+    cmd = [
+        sys.executable,
+        "experiments/reconstruct.py",
+        *overrides,
+        "recon.run_name=interrupted",
+        f"hydra.run.dir={cfg.recon.output_dir}/hydra",
+    ]
+    # SIGINT as a terminal delivers it (a background job may inherit it ignored)
+    proc = subprocess.Popen(
+        cmd,
+        cwd=root,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    t0 = time.time()
+    while not (run / "dynamics" / "checkpoint").exists() and proc.poll() is None and time.time() - t0 < 600:
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 130, err[-3000:]
+    assert "Traceback" not in err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("interrupted during stage dynamics: stages static, anchors, refine, velocity are complete")
+    assert "run the same command again" in last
+    resumed = subprocess.run(cmd, cwd=root, capture_output=True, text=True)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert json.loads(resumed.stdout.strip().splitlines()[-1])["run"] == str(run)

@@ -120,7 +120,11 @@ def test_each_simulation_gets_its_own_folder(tmp_path):
     soft = SimulateConfig(stiffness_scale=0.1, friction=0.0)
     assert simulation_tag(soft) == "friction-0_stiffness_scale-0.1"
     assert simulation_tag(SimulateConfig()) == "unedited"
-    assert simulation_tag(SimulateConfig(gravity=[0, 0, -1.5])) == "gravity-0,0,-1.5"
+    assert simulation_tag(SimulateConfig(gravity=[0, 0, -1.5])) == "gravity-0+0+-1.5"
+    from sgdr.pipeline.config import SIMULATE_CHECKS
+
+    for sim in (soft, SimulateConfig(gravity=[0, 0, -1.5], v0=[1, 0, 0], cameras="orbit")):
+        assert SIMULATE_CHECKS["tag"].ok(simulation_tag(sim))  # a default tag is a valid explicit one
 
     def write(out, sim):
         out.mkdir(parents=True, exist_ok=True)

@@ -171,6 +171,16 @@ def test_ctrl_c_ends_killed_an_exception_failed(tmp_path):
             except KeyboardInterrupt as exc:
                 raise RuntimeError("drjit.custom(...): error while performing a custom operation") from exc
     assert client.get_run(wrapped.run_id).info.status == "KILLED"
+    # the pipeline turns Ctrl-C into RunInterrupted "from None" (one line for the user): still KILLED
+    from sgdr.pipeline.run import RunInterrupted
+
+    with pytest.raises(RunInterrupted):
+        with RunTracker(tmp_path / "d", _Cfg(), tracking) as converted:
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt:
+                raise RunInterrupted("interrupted during stage dynamics") from None
+    assert client.get_run(converted.run_id).info.status == "KILLED"
     assert "KeyboardInterrupt" in (tmp_path / "c" / "reconstruct.log").read_text()  # the traceback, in the log
     # the interrupted run is resumed as the same run, RUNNING while it goes, FINISHED after
     with RunTracker(tmp_path / "a", _Cfg(), tracking) as again:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from sgdr.checks import at_least, choice, non_negative, positive
+
 
 @dataclass
 class AnchorConfig:
@@ -15,3 +17,16 @@ class AnchorConfig:
     p_b: float = 0.5  # IDW weight exponent: w = 1 / d^p_b (Eq. 14)
     binding: str = "official"  # "official" (weighted anchor positions) | "displacement"
     min_distance: float = 1.0e-8  # scene units; IDW distances are floored here (a Gaussian on an anchor)
+
+
+# Allowed values, checked before any work (sgdr.checks; names against their registries).
+CHECKS = {
+    "n_anchors": at_least(2),
+    "n_k": at_least(1),
+    "sampler": choice("sgdr.anchors.sampling:SAMPLERS"),
+    "voxel_size": positive(),
+    "n_b": at_least(1),
+    "p_b": non_negative(),
+    "binding": choice("sgdr.skin.binding:BINDING_FORMS"),
+    "min_distance": positive(),
+}

@@ -19,6 +19,7 @@ from `SCENE_DEFAULTS` (the unit-cube benchmark's conventions).
 from __future__ import annotations
 
 import json
+import logging
 import re
 from pathlib import Path
 
@@ -51,6 +52,7 @@ SCENE_DEFAULTS = {
     "gravity": [0.0, 0.0, -9.8],
 }
 
+log = logging.getLogger(__name__)
 _PAC_NAME = re.compile(r"r_(\d+)_(\d+)\.png$")
 
 
@@ -67,6 +69,15 @@ def scene_meta(root: Path, n_frames: int, **overrides) -> tuple[dict, Path]:
         meta.update(sidecar)
     else:
         source = root / "<reader defaults>"
+        assumed = {k: meta[k] for k in SCENE_DEFAULTS if k not in overrides or overrides[k] is None}
+        if assumed:
+            log.warning(
+                "%s has no %s: assuming the benchmark's scene %s; write the file with your scene's values "
+                "(docs/data-formats.md)",
+                root,
+                SCENE_FILE,
+                assumed,
+            )
     return meta, source
 
 

@@ -82,6 +82,16 @@ class Sequence:
         cam = self.cameras[view_index]
         return read_rgba(self.image_paths[view_index][frame], cam.width, cam.height)
 
+    def check_images(self, progress: bool = False) -> None:
+        """Decode every image of every view and frame once (a `SequenceError` naming the first
+        file that is missing, corrupt or of the wrong size), so a bad file fails before any work
+        instead of inside a stage minutes later. About 3 ms per 128 px image."""
+        from tqdm import tqdm
+
+        pairs = [(v, f) for v in range(self.n_views) for f in range(self.n_frames)]
+        for v, f in tqdm(pairs, desc="checking images", unit="image", disable=not progress, leave=False):
+            self.image(v, f)
+
     def gt_particles(self, frame: int) -> np.ndarray | None:
         """[P, 3] float32 ground-truth particle positions (world) of `frame`, or None."""
         if self.gt_dir is None:
@@ -169,7 +179,10 @@ def read_rgba(path: Path, width: int, height: int) -> np.ndarray:
 
     if not Path(path).is_file():
         fail(path, "<image>", "image file is missing")
-    im = iio.imread(path)
+    try:
+        im = iio.imread(path)
+    except Exception as exc:  # noqa: BLE001 - any decoder error: name the file
+        fail(path, "<image>", f"cannot be decoded as an image ({type(exc).__name__}: {exc})")
     if im.ndim != 3 or im.shape[2] != 4:
         fail(path, "<image>", f"expected RGBA [H, W, 4], got shape {list(im.shape)}")
     if im.shape[:2] != (height, width):

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from sgdr.checks import at_least, between, choice, finite, non_negative, positive
+
 
 @dataclass
 class PhysicsConfig:
@@ -36,3 +38,26 @@ class PhysicsConfig:
     friction_init: float = 0.9  # μ: "project": tangential factor per substep; "coulomb": coefficient
     restitution_init: float = 0.0  # e in [0, 1] ("coulomb" contact only)
     min_length: float = 1.0e-9  # scene units; guards |x_i - x_j| and |Δl| against 0 (NaN gradients)
+
+
+# Allowed values, checked before any work (sgdr.checks; names against their registries).
+CHECKS = {
+    "spring_law": choice("sgdr.physics.laws:SPRING_LAWS"),
+    "springs": choice("sgdr.physics.simulate:SPRINGS"),
+    "symmetric_stiffness": choice("sgdr.physics.laws:SYMMETRIC_STIFFNESS"),
+    "contact": choice("sgdr.physics.laws:CONTACTS"),
+    "rest_speed_factor": non_negative(),
+    "n_substeps": at_least(1),
+    "max_substeps": at_least(1),
+    "cfl_factor": positive(),
+    "adjoint": choice("sgdr.physics.simulate:ADJOINTS"),
+    "m0": positive(),
+    "zeta0": non_negative(),
+    "p_k": finite(),
+    "n_c": non_negative(),
+    "log10_k_init": finite(),
+    "kappa_init": finite(),
+    "friction_init": non_negative(),
+    "restitution_init": between(0.0, 1.0),
+    "min_length": positive(),
+}

@@ -296,7 +296,7 @@ def simulate_asset(asset: Asset, sim_cfg, render_cfg, progress: bool = False):
 def simulation_tag(sim_cfg) -> str:
     """The default name of a simulation's folder, from its edits: every field that differs from
     `SimulateConfig`'s default (except where the outputs go), `<field>-<value>` joined by `_`,
-    e.g. `friction-0_stiffness_scale-0.1`; `unedited` when nothing is edited."""
+    e.g. `friction-0_stiffness_scale-0.1`, `gravity-0+0+-1.5`; `unedited` when nothing is edited."""
     from dataclasses import fields as dc_fields
 
     from sgdr.pipeline.config import SimulateConfig
@@ -311,7 +311,7 @@ def simulation_tag(sim_cfg) -> str:
             value = [float(v) for v in value]
             if value == [float(b) for b in base]:
                 continue
-            text = ",".join(f"{v:g}" for v in value)
+            text = "+".join(f"{v:g}" for v in value)  # a folder name has no commas (sgdr.checks.folder_name)
         elif isinstance(base, float):
             if float(value) == base:
                 continue

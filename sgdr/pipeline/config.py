@@ -4,6 +4,21 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from sgdr.checks import (
+    Check,
+    any_text,
+    at_least,
+    between,
+    choice,
+    finite,
+    folder_name,
+    list_of,
+    non_empty_text,
+    non_negative,
+    positive,
+    vector,
+)
+
 
 @dataclass
 class SimulateConfig:
@@ -81,3 +96,53 @@ class ReconConfig:
     #                               the visible surface lies about one Gaussian scale beyond them
     #                               (< 0 = the median scale of the static fit's Gaussians)
     simulate: SimulateConfig = field(default_factory=SimulateConfig)  # experiments/simulate.py
+
+
+# Allowed values, checked before any work (sgdr.checks; names against their registries).
+SIMULATE_CHECKS = {
+    "asset": any_text("an asset folder; empty: this config's run folder's asset/"),
+    "out_dir": any_text("an output folder; empty: <asset>/../simulate/<tag>"),
+    "tag": folder_name(empty_ok=True),
+    "n_frames": non_negative("0: the sequence's"),
+    "n_substeps": non_negative("0: the value reached in training"),
+    "max_substeps": non_negative("0: the asset's physics.max_substeps"),
+    "ground_height": finite(),
+    "friction": finite(),
+    "restitution": Check(
+        lambda x: finite().ok(x) and x <= 1, "must be a number <= 1 (the bounce e in [0, 1]; < 0: the identified one)"
+    ),
+    "gravity": vector(3, empty_ok=True),
+    "stiffness_scale": positive(),
+    "v0": vector(3, empty_ok=True),
+    "cameras": choice("sgdr.pipeline.asset:SIMULATE_CAMERAS"),
+    "momentum_tolerance": positive(),
+}
+CHECKS = {
+    "iterations": non_negative("0: no dynamic passes, the start values are kept"),
+    "lambda_dssim": between(0.0, 1.0),
+    "substep_growth": list_of(positive(), min_len=1),
+    "cameras_per_frame": at_least(1),
+    "lr_log10_k": non_negative(),
+    "lr_kappa": non_negative(),
+    "lr_friction": non_negative(),
+    "lr_restitution": non_negative(),
+    "lr_v0": non_negative(),
+    "v0_iterations": non_negative(),
+    "refine_iterations": non_negative(),
+    "mode": choice("sgdr.identify.dynamics:RECON_MODES"),
+    "lr_scale": non_negative(),
+    "lr_color": non_negative(),
+    "lr_opacity": non_negative(),
+    "refine_lambda_dssim": between(0.0, 1.0),
+    "v0_lambda_dssim": between(0.0, 1.0),
+    "v0_views_per_step": non_negative("0: every view"),
+    "log10_k_grid": list_of(finite()),
+    "log10_k_min": finite(),
+    "log10_k_max": finite(),
+    "friction_max": non_negative(),
+    "checkpoint_every": non_negative("0: never"),
+    "output_dir": non_empty_text(),
+    "run_name": folder_name(empty_ok=True),
+    "eval_workers": non_negative("0: every CPU"),
+    "contact_margin": finite(),
+}

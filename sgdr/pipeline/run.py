@@ -29,7 +29,9 @@ Stage outputs (all under the run folder):
 
 from __future__ import annotations
 
+import json
 import logging
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -38,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sgdr.checks import ConfigError
 from sgdr.pipeline import flow
 from sgdr.pipeline.flow import RunContext
 from sgdr.pipeline.stages import StageResult, StageRunner, file_hash, key_hash
@@ -189,11 +192,19 @@ def sequence_written_since(seq_root: Path, t: float) -> bool:
 DEFAULT_METHOD = "spring_gaus"  # conf/config.yaml's default method group
 
 
+def sequence_name(cfg) -> str:
+    """What a run is named after: the sequence folder's name with `sequence=`, else the
+    generated object's (`synth.object`), as one folder-name-safe word."""
+    name = Path(cfg.sequence).resolve().name if cfg.sequence else cfg.synth.object
+    return re.sub(r"[^A-Za-z0-9._+-]+", "-", name).strip("-.") or "sequence"
+
+
 def default_run_name(cfg) -> str:
-    """recon.run_name, or `<object>_<preset>_s<seed>` (`<object>_<preset>_<method>_s<seed>` for
-    a method other than the default, so that two methods never share a run folder)."""
+    """recon.run_name, or `<sequence>_<preset>_s<seed>` (`<sequence>_<preset>_<method>_s<seed>`
+    for a method other than the default, so that two methods never share a run folder);
+    <sequence> is `sequence_name`."""
     method = "" if cfg.method == DEFAULT_METHOD else f"_{cfg.method}"
-    return cfg.recon.run_name or f"{cfg.synth.object}_{cfg.preset}{method}_s{cfg.seed}"
+    return cfg.recon.run_name or f"{sequence_name(cfg)}_{cfg.preset}{method}_s{cfg.seed}"
 
 
 def sequence_path(cfg) -> Path:
@@ -210,6 +221,11 @@ def ensure_sequence(cfg, generate_if_missing: bool = True) -> Path:
     """
     from sgdr.data import load_sequence
 
+    if not cfg.sequence and cfg.synth.object == "all":
+        raise ConfigError(
+            "synth.object=all: a reconstruction runs one sequence; name one object, or sweep them with "
+            "`-m synth.object=torus,cross,...` (make reproduce)"
+        )
     path = sequence_path(cfg)
     if not (path / "sequence.json").exists():
         if cfg.sequence or not generate_if_missing:
@@ -239,6 +255,56 @@ def sequence_digest(root: Path) -> str:
     return key_hash({str(p.relative_to(root)): file_hash(p) for p in sorted(root.rglob("*")) if p.is_file()})
 
 
+# ------------------------------------------------------------------------------ run folders
+OWNER = "RUN.json"  # in every run folder: which sequence (path and digest) the run belongs to
+
+
+class RunFolderError(ValueError):
+    """A run folder that belongs to another sequence (it is never reused or overwritten)."""
+
+
+def claim_run_dir(run_dir: Path, seq_root: Path, digest: str) -> None:
+    """Make sure `run_dir` holds a run of this sequence before anything is written into it.
+
+    A new folder is claimed (`RUN.json`: the sequence's path and digest). An existing folder is
+    reused when its recorded sequence has the same contents (digest; the path may differ, e.g.
+    a copied folder) or the same path (the data were regenerated or edited there: the stages
+    that read them redo, and the log says so). Otherwise (another sequence) `RunFolderError`
+    names both and how to choose another folder. Folders written before `RUN.json` existed are
+    judged by the sequence recorded in their `config.yaml`.
+    """
+    run_dir, seq_root = Path(run_dir), Path(seq_root).resolve()
+    owner = run_dir / OWNER
+    recorded: dict | None = None
+    if owner.is_file():
+        try:
+            recorded = json.loads(owner.read_text())
+            recorded = {"sequence": str(recorded["sequence"]), "digest": str(recorded.get("digest", ""))}
+        except (ValueError, KeyError, TypeError) as exc:
+            raise RunFolderError(f"{owner}: unreadable ({exc}); delete it to let this run claim the folder") from exc
+    elif (run_dir / "config.yaml").is_file():
+        import yaml
+
+        old = yaml.safe_load((run_dir / "config.yaml").read_text()) or {}
+        seq = old.get("sequence") or str(Path(old.get("data_dir", "data")) / old.get("synth", {}).get("object", ""))
+        recorded = {"sequence": str(Path(seq).resolve()), "digest": ""}
+    if recorded is not None and recorded["digest"] != digest:
+        if Path(recorded["sequence"]) != seq_root:
+            raise RunFolderError(
+                f"run folder {run_dir} holds a run of {recorded['sequence']}, not of {seq_root}: it is never reused for "
+                f"another sequence. Choose another folder with recon.run_name=<name> (or recon.output_dir=), or delete "
+                f"{run_dir} to start over there."
+            )
+        if recorded["digest"]:
+            log.warning(
+                "the sequence %s changed since run folder %s was made: the stages that read it are redone",
+                seq_root,
+                run_dir,
+            )
+    run_dir.mkdir(parents=True, exist_ok=True)
+    owner.write_text(json.dumps({"sequence": str(seq_root), "digest": digest}, indent=1))
+
+
 # ------------------------------------------------------------------------------ the run
 def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> RunOutputs:
     """Reconstruct, predict, evaluate and report one sequence; returns the run's outputs.
@@ -246,15 +312,20 @@ def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> Run
     cfg: the composed `sgdr.config.Config` (a dataclass instance: `OmegaConf.to_object`).
     The backend must be initialised by the caller (`sgdr.backend.init`).
     """
+    from sgdr.config import validate
     from sgdr.data import load_sequence
     from sgdr.tracking import RunTracker
 
     t_start = time.time()
+    validate(cfg)  # every config value, before any work
     seq_root = ensure_sequence(cfg)
     t_sequence = time.time() - t_start  # generation when the sequence was missing
     seq = load_sequence(seq_root)
+    seq.check_images(progress)  # every image decodes, before any work
     name = default_run_name(cfg)
     run_dir = Path(run_dir) if run_dir is not None else Path(cfg.recon.output_dir) / name
+    seq_hash = sequence_digest(seq_root)
+    claim_run_dir(run_dir, seq_root, seq_hash)
     with RunTracker(
         run_dir,
         cfg,
@@ -265,12 +336,12 @@ def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> Run
         volatile=tuple(f"recon.{k}" for k in RECON_NEVER_IN_KEYS),
         log_file="reconstruct.log",
     ) as tracker:
-        out = _run_stages(cfg, seq, seq_root, run_dir, tracker, progress)
+        out = _run_stages(cfg, seq, seq_hash, run_dir, tracker, progress)
         metrics = dict(out.stages["evaluate"].value)
         dyn = out.stages["dynamics"].value
         metrics.update(
             {
-                "object": cfg.synth.object,
+                "sequence_name": sequence_name(cfg),
                 "preset": cfg.preset,
                 "seed": cfg.seed,
                 "sequence": str(seq_root),
@@ -300,21 +371,59 @@ def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> Run
     return out
 
 
-def _run_stages(cfg, seq, seq_root: Path, run_dir: Path, tracker, progress: bool) -> RunOutputs:
+class RunInterrupted(Exception):
+    """Ctrl-C during a run; the message says what was saved and how to resume."""
+
+
+def _run_stages(cfg, seq, seq_hash: str, run_dir: Path, tracker, progress: bool) -> RunOutputs:
     """Run `PIPELINE` in order through the stage runner (skip, resume or redo each stage)."""
     runner = StageRunner(run_dir, force=cfg.recon.force)
-    seq_hash = sequence_digest(seq_root)
     ctx = RunContext(cfg, seq, tracker, progress)
     stages: dict[str, StageResult] = {}
-    for st in PIPELINE:
-        key = dict(stage_sections(cfg, st.name))
-        if st.seeded:
-            key["seed"] = cfg.seed
-        if st.reads_sequence:
-            key["sequence"] = seq_hash
-        key["input"] = [stages[n].digest for n in st.needs]
-        if st.extra_key is not None:
-            key.update(st.extra_key(ctx))
-        stages[st.name] = runner.run(st.name, key, partial(st.produce, ctx), partial(st.load, ctx))
-        ctx.values[st.name] = stages[st.name].value
+    st = PIPELINE[0]
+    try:
+        for st in PIPELINE:
+            key = dict(stage_sections(cfg, st.name))
+            if st.seeded:
+                key["seed"] = cfg.seed
+            if st.reads_sequence:
+                key["sequence"] = seq_hash
+            key["input"] = [stages[n].digest for n in st.needs]
+            if st.extra_key is not None:
+                key.update(st.extra_key(ctx))
+            stages[st.name] = runner.run(st.name, key, partial(st.produce, ctx), partial(st.load, ctx))
+            ctx.values[st.name] = stages[st.name].value
+    except KeyboardInterrupt:
+        raise RunInterrupted(interrupted_message(run_dir, st.name, list(stages))) from None
+    except Exception as exc:
+        if not caused_by_interrupt(exc):
+            raise
+        raise RunInterrupted(interrupted_message(run_dir, st.name, list(stages))) from None
     return RunOutputs(run_dir, {}, stages)
+
+
+def caused_by_interrupt(exc: BaseException) -> bool:
+    """True when Ctrl-C is somewhere in the chain of `exc`: Dr.Jit re-raises an interrupt inside
+    a custom op as a RuntimeError caused by it."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def interrupted_message(run_dir: Path, stage: str, done: list[str]) -> str:
+    """One line: where the run stopped, what is saved, how to resume."""
+    from sgdr.pipeline.stages import CHECKPOINT_DIR, Checkpoint
+
+    saved = f"stages {', '.join(done)} are complete" if done else "no stage was complete"
+    ckpt = Checkpoint(run_dir / stage / CHECKPOINT_DIR, "")
+    if ckpt.path.is_file():
+        try:
+            with np.load(ckpt.path, allow_pickle=False) as z:
+                saved += f", stage {stage} is saved up to step {int(z['__step__'])}"
+        except Exception:  # noqa: BLE001 - an unreadable checkpoint is simply not reported
+            pass
+    return f"interrupted during stage {stage}: {saved} (in {run_dir}); run the same command again to resume from there"

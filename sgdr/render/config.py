@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from sgdr.checks import at_least, between, non_negative, positive, vector
+
 
 @dataclass
 class RenderConfig:
@@ -17,3 +19,17 @@ class RenderConfig:
     guard_band: float = 1.3  # x/z, y/z are clamped to this multiple of the half field of view in J
     check_finite: bool = True  # raise a RenderError naming the field when a parameter is NaN/inf
     background: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])  # RGB
+
+
+# Allowed values, checked before any work (sgdr.checks).
+CHECKS = {
+    "tile_size": at_least(1),
+    "pixels_per_thread": at_least(1),
+    "dilation": non_negative(),
+    "near": positive(),
+    "alpha_min": between(0.0, 1.0, lo_open=True, hi_open=True),
+    "alpha_max": between(0.0, 1.0, lo_open=True, hi_open=True),
+    "transmittance_min": between(0.0, 1.0, lo_open=True, hi_open=True),
+    "guard_band": positive(),
+    "background": vector(3, each=between(0.0, 1.0)),
+}

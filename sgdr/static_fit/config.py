@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from sgdr.checks import at_least, between, non_negative, positive
+
 
 @dataclass
 class StaticFitConfig:
@@ -23,3 +25,24 @@ class StaticFitConfig:
     carve_grid: int = 48  # voxels per side when the box is carved from the masks
     carve_extent: float = 0.5  # carving cube half-size, as a fraction of the mean camera distance
     box_margin: float = 0.05  # relative padding of the carved box
+
+
+# Allowed values, checked before any work (sgdr.checks).
+CHECKS = {
+    "n_init": at_least(1),
+    "s0": positive(),
+    "iterations": at_least(1),
+    "views_per_step": at_least(1),
+    "lr_position": non_negative(),
+    "lr_position_final": non_negative(),
+    "lr_color": non_negative(),
+    "lr_opacity": non_negative(),
+    "init_opacity": between(0.0, 1.0, lo_open=True, hi_open=True),
+    "lambda_dssim": between(0.0, 1.0),
+    "lambda_mask": non_negative(),
+    "prune_opacity": between(0.0, 1.0, hi_open=True),
+    "prune_every": non_negative("0: only at the end"),
+    "carve_grid": at_least(2),
+    "carve_extent": positive(),
+    "box_margin": non_negative(),
+}

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from sgdr.checks import at_least, finite, list_of
+
 
 @dataclass
 class OracleConfig:
@@ -19,3 +21,13 @@ class OracleConfig:
     )  # after the fit: rollouts with
     #                               the identified log10 k field shifted by each offset ([] = none)
     ensemble_tol: float = 1.25  # ensemble = the offsets whose fit error is within this x the best
+
+
+# Allowed values, checked before any work (sgdr.checks).
+CHECKS = {
+    "iterations": at_least(1),
+    "log10_k_init": finite(),
+    "contact_margin": finite(),
+    "k_offsets": list_of(finite()),
+    "ensemble_tol": at_least(1.0),
+}

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from sgdr.checks import any_text, at_least, between, choice, finite, non_negative, positive, vector
+
 
 @dataclass
 class EffectsConfig:
@@ -63,3 +65,49 @@ class SynthConfig:
     # --- output
     out: str = ""  # sequence folder; "" = <data_dir>/<object>; object "all" = the seven objects
     overwrite: bool = False  # regenerate sequences that are already complete
+
+
+# Allowed values, checked before any work (sgdr.checks; names against their registries).
+EFFECTS_CHECKS = {
+    "plastic_yield": non_negative("0: elastic"),
+    "air_drag": non_negative("0: none"),
+    "stiff_ratio": positive(),
+    "stiff_axis": choice((0, 1, 2)),
+    "gravity": positive(),
+}
+CHECKS = {
+    "object": choice("sgdr.synth.objects:OBJECTS", also=("all",)),
+    "resolution": at_least(8),
+    "n_views": at_least(1),
+    "n_frames": at_least(2),
+    "n_fit": at_least(1),
+    "fps": positive(),
+    "spp": at_least(1),
+    "mpm_grid": at_least(8),
+    "particles_per_cell": at_least(1),
+    "E": positive(),
+    "nu": between(0.0, 0.5, hi_open=True),
+    "density": positive(),
+    "ground": choice("sgdr.synth.mpm:COLLIDERS"),
+    "ground_friction": non_negative(),
+    "surface_grid": at_least(8),
+    "material": choice("sgdr.synth.mpm:CONSTITUTIVE"),
+    "cfl": between(0.0, 1.0, lo_open=True),
+    "substeps": non_negative("0: the fewest the CFL bound allows"),
+    "hit_frame": at_least(1),
+    "v0": vector(3),
+    "wall_cells": at_least(1),
+    "surface_sigma": positive(),
+    "surface_level": positive(),
+    "pattern_scale": non_negative(),
+    "camera_radius": positive(),
+    "camera_fov": between(0.0, 180.0, lo_open=True, hi_open=True),
+    "camera_elevation": vector(2, each=between(-90.0, 90.0)),
+    "camera_target": vector(3),
+    "env_radiance": non_negative(),
+    "light_radiance": non_negative(),
+    "light_size": positive(),
+    "light_height": finite(),
+    "max_depth": at_least(1),
+    "out": any_text("the sequence folder; empty: <data_dir>/<object>"),
+}

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from sgdr.checks import non_empty_text
+
 
 @dataclass
 class TrackingConfig:
@@ -12,3 +14,7 @@ class TrackingConfig:
     #                                   repository root (not the current directory): one store for every
     #                                   driver wherever it runs; an absolute path or an http:// URI as given
     experiment: str = "sgdr"  # MLflow experiment name
+
+
+# Allowed values, checked before any work (sgdr.checks).
+CHECKS = {"uri": non_empty_text(), "experiment": non_empty_text()}

@@ -170,7 +170,9 @@ def ensure_store(tracking: TrackingConfig, base: Path | None = None) -> str | No
 
 def _interrupted(exc: BaseException | None) -> bool:
     """Was the run stopped rather than broken: a KeyboardInterrupt (Ctrl-C) or SystemExit, also
-    when wrapped in another exception (a Dr.Jit custom op turns one into a RuntimeError)."""
+    when wrapped in another exception: a Dr.Jit custom op turns one into a RuntimeError, the
+    pipeline into `RunInterrupted` (raised `from None`, which hides the interrupt from the
+    traceback but keeps it as `__context__`)."""
     seen = set()
     while exc is not None and id(exc) not in seen:
         if isinstance(exc, (KeyboardInterrupt, SystemExit)):

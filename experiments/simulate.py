@@ -43,7 +43,25 @@ sgdr.config.register()
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
+    """A bad value, a missing asset, a taken output folder or an unstable edit ends with one
+    line `error: ...` naming the key or file (exit 2); anything else keeps its traceback."""
+    from sgdr.cli import user_errors
+
+    with user_errors():
+        try:
+            simulate(cfg)
+        except (FileNotFoundError, FileExistsError, RuntimeError) as exc:
+            from sgdr.physics import SimulationUnstable
+
+            if not isinstance(exc, (FileNotFoundError, FileExistsError, SimulationUnstable)):
+                raise
+            print(f"error: {exc}", file=sys.stderr, flush=True)
+            sys.exit(2)
+
+
+def simulate(cfg: DictConfig) -> None:
     sgdr.backend.init(cfg.backend, cfg.threads or None)
+    from sgdr.config import validate
     from sgdr.pipeline.asset import (
         load_asset,
         simulate_asset,
@@ -56,6 +74,7 @@ def main(cfg: DictConfig) -> None:
 
     logging.getLogger("sgdr").setLevel(logging.INFO)
     c = OmegaConf.to_object(cfg)
+    validate(c)  # every config value, recon.simulate.* included, before any work
     sim = c.recon.simulate
     asset_dir = Path(sim.asset) if sim.asset else Path(c.recon.output_dir) / default_run_name(c) / "asset"
     asset = load_asset(asset_dir)

@@ -178,47 +178,50 @@ def orbit_cameras(asset: Asset, n: int) -> list[Camera]:
 
 
 def check_simulate_config(asset: Asset, sim_cfg) -> None:
-    """Refuse edits that cannot be simulated, naming the key `recon.simulate.<field>` (ValueError).
+    """Refuse edits that cannot be simulated, naming the key `recon.simulate.<field>`
+    (`sgdr.checks.ConfigError`, a ValueError).
 
     Kept to what a bare error would otherwise hide (a math domain error, a reshape error, a
     rollout of no frames) and to what depends on the asset (its contact model); the value
     ranges of every config section are also checked up front by the config validator."""
+    from sgdr.checks import ConfigError  # a ValueError the drivers report in one line
+
     where = "recon.simulate"
 
     def finite(name, value):
         if not math.isfinite(float(value)):
-            raise ValueError(f"{where}.{name}={value} must be a finite number")
+            raise ConfigError(f"{where}.{name}={value} must be a finite number")
 
     for name in ("stiffness_scale", "ground_height", "friction", "restitution", "momentum_tolerance"):
         finite(name, getattr(sim_cfg, name))
     if not float(sim_cfg.stiffness_scale) > 0:
-        raise ValueError(
+        raise ConfigError(
             f"{where}.stiffness_scale={sim_cfg.stiffness_scale} must be > 0 (every k_i is multiplied by it)"
         )
     for name in ("gravity", "v0"):
         vec = list(getattr(sim_cfg, name))
         if len(vec) not in (0, 3):
-            raise ValueError(
+            raise ConfigError(
                 f"{where}.{name}={vec} must hold 3 numbers [x, y, z] or be empty ([] = the identified value)"
             )
         for v in vec:
             finite(name, v)
     for name in ("n_frames", "n_substeps", "max_substeps"):
         if int(getattr(sim_cfg, name)) < 0:
-            raise ValueError(f"{where}.{name}={getattr(sim_cfg, name)} must be >= 0 (0 = the asset's)")
+            raise ConfigError(f"{where}.{name}={getattr(sim_cfg, name)} must be >= 0 (0 = the asset's)")
     if not float(sim_cfg.momentum_tolerance) > 0:
-        raise ValueError(f"{where}.momentum_tolerance={sim_cfg.momentum_tolerance} must be > 0 (scene units / s)")
+        raise ConfigError(f"{where}.momentum_tolerance={sim_cfg.momentum_tolerance} must be > 0 (scene units / s)")
     contact = asset.physics.contact
     if contact == "project" and float(sim_cfg.friction) > 1:
-        raise ValueError(
+        raise ConfigError(
             f"{where}.friction={sim_cfg.friction}: with the asset's physics.contact=project friction is the factor "
             "the tangential velocity is multiplied by at every substep in contact, in [0, 1] (1 = frictionless, "
             "0 = sticky); above 1 the ground would push the object along"
         )
     if float(sim_cfg.restitution) > 1:
-        raise ValueError(f"{where}.restitution={sim_cfg.restitution} must be in [0, 1] (< 0 = the identified value)")
+        raise ConfigError(f"{where}.restitution={sim_cfg.restitution} must be in [0, 1] (< 0 = the identified value)")
     if float(sim_cfg.restitution) >= 0 and contact != "coulomb":
-        raise ValueError(
+        raise ConfigError(
             f"{where}.restitution={sim_cfg.restitution} has no effect: the asset's contact model is "
             f"physics.contact={contact} (in {asset.root / 'asset.json'}), which never bounces; restitution acts "
             "only under physics.contact=coulomb (reconstruct with it to get a bouncing asset)"

@@ -7,9 +7,10 @@
 Uses `sequence=` when given, else `<data_dir>/<synth.object>` (generated at the preset when
 missing). Every config value and every image is checked first (errors name the key or the
 file). Outputs go to `<recon.output_dir>/<sequence>_<preset>_s<seed>/` (stages, report,
-asset, config.yaml, metrics.json), never into a folder holding another sequence, and to the
-MLflow store (`tracking.uri`). A rerun skips verified completed stages and resumes an
-interrupted one. The last line printed is one JSON object with the headline scores.
+asset, config.yaml, metrics.json, reconstruct.log), never into a folder holding another
+sequence, and to one MLflow run per run folder in the store (`tracking.uri`, see
+sgdr.tracking). A rerun skips verified completed stages, resumes an interrupted one and
+continues the same MLflow run. The last line printed is one JSON object with the headline scores.
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ HEADLINE = (
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     from sgdr.cli import user_errors
+    from sgdr.tracking import resolve_uri
 
     with user_errors():
         sgdr.backend.init(cfg.backend, cfg.threads or None)
@@ -60,7 +62,8 @@ def main(cfg: DictConfig) -> None:
     print(f"plots:        {report / 'metric_curves.png'}, {report / 'losses.png'}, {report / 'stiffness.png'}")
     print(f"PLYs:         {report / 'ply'}/centres_*.ply, anchors_*.ply")
     print(f"asset:        {out.run_dir / 'asset'} (python experiments/simulate.py recon.simulate.asset=...)")
-    print(f"MLflow store: {cfg.tracking.uri} (mlflow ui --backend-store-uri {cfg.tracking.uri})")
+    store = resolve_uri(cfg.tracking.uri)  # a relative SQLite path is the repository root's
+    print(f"MLflow store: {store} (mlflow ui --backend-store-uri {store})")
     print(
         json.dumps(
             {

@@ -83,6 +83,18 @@ def test_run_folder_holds_the_record(tiny_run):
     ):
         assert (d / "report" / name).stat().st_size > 0, name
     assert (d / "asset" / "asset.json").exists()
+    # the record of the run: its log in the run folder, one MLflow run with the settings that act
+    from mlflow.tracking import MlflowClient
+
+    assert (d / "reconstruct.log").read_text().startswith("==== ")
+    state = json.loads((d / "mlflow_run.json").read_text())
+    run = MlflowClient(tracking_uri=state["tracking_uri"]).get_run(state["run_id"])
+    assert run.info.status == "FINISHED" and run.data.tags["mlflow.source.git.commit"]
+    assert "recon.iterations" in run.data.params and "physics.springs" in run.data.params
+    assert not [k for k in run.data.params if k.startswith(("oracle.", "recon.simulate.", "tracking."))]
+    artifacts = {a.path for a in MlflowClient(tracking_uri=state["tracking_uri"]).list_artifacts(run.info.run_id)}
+    assert {"asset", "report", "metrics.json", "config.yaml", "reconstruct.log"} <= artifacts
+    assert metrics["provenance"]["mlflow_run_id"] == state["run_id"]
 
 
 def test_report_opens_in_a_browser_with_its_verdict(tiny_run):
@@ -147,8 +159,10 @@ def test_foreign_layouts_reconstruct(tmp_path, layout):
 
 def test_rerun_skips_and_corruption_is_redone(tiny_run):
     overrides, cfg, out = tiny_run
+    run_id = json.loads((out.run_dir / "mlflow_run.json").read_text())["run_id"]
     again = run_pipeline(cfg, progress=False)
     assert set(again.metrics["stages_skipped"]) == set(STAGES)
+    assert json.loads((out.run_dir / "mlflow_run.json").read_text())["run_id"] == run_id  # the same MLflow run
     assert again.metrics["future_cd"] == out.metrics["future_cd"]
     params = out.run_dir / "dynamics" / "params.npz"
     params.write_bytes(params.read_bytes()[:-10])  # truncated: a partial write
@@ -182,6 +196,29 @@ def test_simulate_new_conditions(tiny_run):
     assert ends[0.0] - ends[-0.05] == pytest.approx(0.05, abs=0.015)
 
 
+def test_simulate_warns_when_the_directed_springs_gain_momentum(tiny_run):
+    """The issue's case: the torus on a frictionless ground (coulomb contact, μ = 0) gains
+    momentum from its directed springs; the same edit with symmetric springs does not."""
+    from dataclasses import replace
+
+    from sgdr.pipeline.asset import load_asset, simulate_asset, simulation_momentum
+    from sgdr.pipeline.config import SimulateConfig
+
+    _, cfg, out = tiny_run
+    asset = load_asset(out.run_dir / "asset")
+    assert asset.physics.springs == "directed" and asset.physics.contact == "coulomb"
+    sim = SimulateConfig(friction=0.0, n_frames=36, cameras="orbit")
+    verdicts = {}
+    for springs in ("directed", "symmetric"):
+        variant = replace(asset, physics=replace(asset.physics, springs=springs))
+        pred, _ = simulate_asset(variant, sim, cfg.render)
+        verdicts[springs] = simulation_momentum(variant, sim, pred)
+        assert verdicts[springs]["ground_dv_end_along_ground"] < 1e-3  # frictionless: the ground adds nothing along it
+    assert verdicts["directed"]["gains_momentum"] and "physics.springs=directed" in verdicts["directed"]["warning"]
+    assert verdicts["directed"]["springs_dv_max_along_ground"] > 0.2
+    assert not verdicts["symmetric"]["gains_momentum"] and verdicts["symmetric"]["springs_dv_max"] < 1e-3
+
+
 def test_drivers_run_on_the_tiny_preset(tiny_run):
     import subprocess
     import sys
@@ -210,8 +247,15 @@ def test_drivers_run_on_the_tiny_preset(tiny_run):
         text=True,
     )
     assert sim.returncode == 0, sim.stderr[-2000:]
-    target = Path(json.loads(sim.stdout.strip().splitlines()[-1])["simulate"])
+    summary = json.loads(sim.stdout.strip().splitlines()[-1])
+    target = Path(summary["simulate"])
+    assert target.name == "n_frames-3_stiffness_scale-0.5"  # named after the edits
     assert (target / "video.mp4").stat().st_size > 0 and (target / "trajectory.npz").exists()
+    assert isinstance(summary["gains_momentum"], bool) and summary["n_substeps"] >= 1
+    record = json.loads((target / "simulate.json").read_text())
+    assert (
+        record["edits"]["stiffness_scale"] == 0.5 and record["momentum"]["gains_momentum"] == summary["gains_momentum"]
+    )
     # the identification upper bound: the model fitted to the generator's particle tracks
     orc = subprocess.run(
         [sys.executable, "experiments/oracle.py", *common, "oracle.iterations=4"],

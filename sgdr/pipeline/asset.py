@@ -177,12 +177,67 @@ def orbit_cameras(asset: Asset, n: int) -> list[Camera]:
     return cams
 
 
+def check_simulate_config(asset: Asset, sim_cfg) -> None:
+    """Refuse edits that cannot be simulated, naming the key `recon.simulate.<field>`
+    (`sgdr.checks.ConfigError`, a ValueError).
+
+    Kept to what a bare error would otherwise hide (a math domain error, a reshape error, a
+    rollout of no frames) and to what depends on the asset (its contact model); the value
+    ranges of every config section are also checked up front by the config validator."""
+    from sgdr.checks import ConfigError  # a ValueError the drivers report in one line
+
+    where = "recon.simulate"
+
+    def finite(name, value):
+        if not math.isfinite(float(value)):
+            raise ConfigError(f"{where}.{name}={value} must be a finite number")
+
+    for name in ("stiffness_scale", "ground_height", "friction", "restitution", "momentum_tolerance"):
+        finite(name, getattr(sim_cfg, name))
+    if not float(sim_cfg.stiffness_scale) > 0:
+        raise ConfigError(
+            f"{where}.stiffness_scale={sim_cfg.stiffness_scale} must be > 0 (every k_i is multiplied by it)"
+        )
+    for name in ("gravity", "v0"):
+        vec = list(getattr(sim_cfg, name))
+        if len(vec) not in (0, 3):
+            raise ConfigError(
+                f"{where}.{name}={vec} must hold 3 numbers [x, y, z] or be empty ([] = the identified value)"
+            )
+        for v in vec:
+            finite(name, v)
+    for name in ("n_frames", "n_substeps", "max_substeps"):
+        if int(getattr(sim_cfg, name)) < 0:
+            raise ConfigError(f"{where}.{name}={getattr(sim_cfg, name)} must be >= 0 (0 = the asset's)")
+    if not float(sim_cfg.momentum_tolerance) > 0:
+        raise ConfigError(f"{where}.momentum_tolerance={sim_cfg.momentum_tolerance} must be > 0 (scene units / s)")
+    contact = asset.physics.contact
+    if contact == "project" and float(sim_cfg.friction) > 1:
+        raise ConfigError(
+            f"{where}.friction={sim_cfg.friction}: with the asset's physics.contact=project friction is the factor "
+            "the tangential velocity is multiplied by at every substep in contact, in [0, 1] (1 = frictionless, "
+            "0 = sticky); above 1 the ground would push the object along"
+        )
+    if float(sim_cfg.restitution) > 1:
+        raise ConfigError(f"{where}.restitution={sim_cfg.restitution} must be in [0, 1] (< 0 = the identified value)")
+    if float(sim_cfg.restitution) >= 0 and contact != "coulomb":
+        raise ConfigError(
+            f"{where}.restitution={sim_cfg.restitution} has no effect: the asset's contact model is "
+            f"physics.contact={contact} (in {asset.root / 'asset.json'}), which never bounces; restitution acts "
+            "only under physics.contact=coulomb (reconstruct with it to get a bouncing asset)"
+        )
+    SIMULATE_CAMERAS.get_named(sim_cfg.cameras)
+
+
 def edited_values(asset: Asset, sim_cfg) -> tuple[dict, np.ndarray, float]:
-    """(parameter values, ground point, friction) after the edits of `SimulateConfig`."""
+    """(parameter values, ground point, friction) after the edits of `SimulateConfig`
+    (`check_simulate_config` first: a stiffness_scale <= 0 has no logarithm)."""
     values = dict(asset.values)
     values["log10_k"] = np.asarray(values["log10_k"], float) + math.log10(float(sim_cfg.stiffness_scale))
     if sim_cfg.friction >= 0:
         values["friction"] = float(sim_cfg.friction)
+    if sim_cfg.restitution >= 0:
+        values["restitution"] = float(sim_cfg.restitution)
     if len(sim_cfg.gravity):
         values["gravity"] = np.asarray(sim_cfg.gravity, float).reshape(3)
     if len(sim_cfg.v0):
@@ -198,34 +253,152 @@ def simulate_asset(asset: Asset, sim_cfg, render_cfg, progress: bool = False):
     `sim_cfg.cameras` (`SIMULATE_CAMERAS`): "sequence", every sequence camera renders every
     frame; "orbit", frame t is rendered from orbit camera t (one turn over the clip). The
     substeps per frame are `sim_cfg.n_substeps` (recon.simulate.n_substeps), 0 = the n_t the
-    asset reached in training; an unstable rollout says so.
+    asset reached in training; an unstable rollout is redone with twice the substeps (the
+    asset's physics.retry_on_nan) up to recon.simulate.max_substeps (0 = the asset's
+    physics.max_substeps), and if still unstable the error names those two keys and the
+    substeps tried. The Prediction's `n_substeps` is what the rollout used, its `velocities`
+    feed `sgdr.pipeline.momentum.momentum_check`. Invalid edits raise ValueError naming
+    `recon.simulate.<field>` (`check_simulate_config`).
     """
+    from dataclasses import replace
+
     from sgdr.physics import Ground, SimulationUnstable
     from sgdr.pipeline.predict import physical_params
 
+    check_simulate_config(asset, sim_cfg)
     render_with = SIMULATE_CAMERAS.get_named(sim_cfg.cameras)
     model, binding = asset.build()
     values, point, _ = edited_values(asset, sim_cfg)
     ground = Ground(point, asset.ground_normal)
-    params = physical_params(model, asset.physics, values)
-    n_frames = int(sim_cfg.n_frames) or asset.n_frames
     n_t = int(sim_cfg.n_substeps) or asset.n_substeps
+    max_substeps = int(sim_cfg.max_substeps) or asset.physics.max_substeps
+    physics = replace(asset.physics, max_substeps=max(max_substeps, n_t))
+    params = physical_params(model, physics, values)
+    n_frames = int(sim_cfg.n_frames) or asset.n_frames
     try:
-        return render_with(asset, model, params, binding, ground, n_frames, n_t, render_cfg, progress)
+        return render_with(asset, model, params, binding, ground, n_frames, n_t, render_cfg, progress, physics)
     except SimulationUnstable as exc:
+        tried = n_t
+        while physics.retry_on_nan and 2 * tried <= physics.max_substeps:
+            tried *= 2
+        inner = str(exc).replace("physics.n_substeps", "recon.simulate.n_substeps")
+        inner = inner.replace("physics.max_substeps", "recon.simulate.max_substeps")
+        retried = (
+            f"doubled up to n_t={tried}, the most recon.simulate.max_substeps={physics.max_substeps} allows"
+            if physics.retry_on_nan
+            else "not retried (the asset's physics.retry_on_nan is off)"
+        )
         raise SimulationUnstable(
-            f"simulating the asset with n_t={n_t}: {exc}. Here n_t is recon.simulate.n_substeps (0 = the asset's "
-            f"{asset.n_substeps}): raise recon.simulate.n_substeps, not physics.n_substeps"
+            f"the edited rollout is unstable with recon.simulate.n_substeps={sim_cfg.n_substeps} (n_t={n_t}"
+            f"{'' if sim_cfg.n_substeps else ', the asset reached in training'}; {retried}): {inner}. The "
+            "simulation uses recon.simulate.n_substeps and recon.simulate.max_substeps, not physics.*: raise "
+            "them, or lower recon.simulate.stiffness_scale"
         ) from exc
 
 
+def simulation_tag(sim_cfg) -> str:
+    """The default name of a simulation's folder, from its edits: every field that differs from
+    `SimulateConfig`'s default (except where the outputs go), `<field>-<value>` joined by `_`,
+    e.g. `friction-0_stiffness_scale-0.1`, `gravity-0+0+-1.5`; `unedited` when nothing is edited."""
+    from dataclasses import fields as dc_fields
+
+    from sgdr.pipeline.config import SimulateConfig
+
+    default = SimulateConfig()
+    parts = []
+    for f in dc_fields(SimulateConfig):
+        if f.name in ("asset", "out_dir", "tag", "overwrite"):
+            continue
+        value, base = getattr(sim_cfg, f.name), getattr(default, f.name)
+        if isinstance(base, list):
+            value = [float(v) for v in value]
+            if value == [float(b) for b in base]:
+                continue
+            text = "+".join(f"{v:g}" for v in value)  # a folder name has no commas (sgdr.checks.folder_name)
+        elif isinstance(base, float):
+            if float(value) == base:
+                continue
+            text = f"{float(value):g}"
+        else:
+            if value == base:
+                continue
+            text = str(value)
+        parts.append(f"{f.name}-{text}")
+    return "_".join(parts) or "unedited"
+
+
+def _simulation_record(sim_cfg, asset_dir) -> dict:
+    """What identifies a simulation in its simulate.json: the asset folder and the edits."""
+    from sgdr.pipeline.config import SimulateConfig
+
+    edits = {
+        f.name: getattr(sim_cfg, f.name)
+        for f in fields(SimulateConfig)
+        if f.name not in ("asset", "out_dir", "tag", "overwrite")
+    }
+    edits = json.loads(json.dumps(edits, default=list))  # lists of floats, as read back
+    return {"asset": str(Path(asset_dir).resolve()), "edits": edits}
+
+
+def simulation_dir(asset_dir, sim_cfg) -> Path:
+    """The output folder of this simulation, never another simulation's silently.
+
+    Default (`recon.simulate.out_dir` and `recon.simulate.tag` empty):
+    `<asset>/../simulate/<simulation_tag>`; if that folder holds a different simulation (its
+    simulate.json names another asset or other edits), the next free `<tag>-2`, `<tag>-3`, ... is
+    used instead. The same simulation again (same asset, same edits) reuses its folder.
+    Explicit `recon.simulate.out_dir` or `recon.simulate.tag`: a folder holding a different
+    simulation (or files but no simulate.json) is refused with FileExistsError naming the key,
+    unless `recon.simulate.overwrite=true`.
+    """
+    asset_dir = Path(asset_dir)
+    record = _simulation_record(sim_cfg, asset_dir)
+    explicit = "recon.simulate.out_dir" if sim_cfg.out_dir else "recon.simulate.tag" if sim_cfg.tag else ""
+    base = Path(sim_cfg.out_dir) if sim_cfg.out_dir else asset_dir.parent / "simulate" / (sim_cfg.tag or "")
+    if not sim_cfg.out_dir and not sim_cfg.tag:
+        tag = simulation_tag(sim_cfg)
+        base = asset_dir.parent / "simulate" / tag
+        out, i = base, 1
+        while _holds_other_simulation(out, record):
+            i += 1
+            out = base.with_name(f"{tag}-{i}")
+        return out
+    if _holds_other_simulation(base, record) and not sim_cfg.overwrite:
+        raise FileExistsError(
+            f"{base} ({explicit}) already holds another simulation ({base / 'simulate.json'}: other asset or "
+            "edits, or files without a simulate.json): choose another "
+            f"{explicit}, leave recon.simulate.tag and out_dir empty for a new folder named after the edits, or "
+            "set recon.simulate.overwrite=true to replace it"
+        )
+    return base
+
+
+def _holds_other_simulation(folder: Path, record: dict) -> bool:
+    if not folder.exists() or not any(folder.iterdir()):
+        return False
+    meta = folder / "simulate.json"
+    if not meta.exists():
+        return True
+    try:
+        saved = json.loads(meta.read_text())
+    except json.JSONDecodeError:
+        return True
+    return {"asset": saved.get("asset"), "edits": saved.get("edits")} != record
+
+
+def simulation_record(sim_cfg, asset_dir, **extra) -> dict:
+    """simulate.json's content: the asset, the edits (what `simulation_dir` compares) and `extra`."""
+    return {**_simulation_record(sim_cfg, asset_dir), **extra}
+
+
 # How `simulate_asset` renders (recon.simulate.cameras): (asset, model, params, binding, ground,
-# n_frames, n_t, render_cfg, progress) -> (Prediction, cameras).
+# n_frames, n_t, render_cfg, progress, physics) -> (Prediction, cameras); physics: the asset's
+# PhysicsConfig with the simulation's max_substeps.
 SIMULATE_CAMERAS = Registry("simulate camera set", "recon.simulate.cameras", ValueError)
 
 
 @SIMULATE_CAMERAS.register("sequence")
-def simulate_sequence_cameras(asset, model, params, binding, ground, n_frames, n_t, render_cfg, progress):
+def simulate_sequence_cameras(asset, model, params, binding, ground, n_frames, n_t, render_cfg, progress, physics):
     """Every sequence camera renders every frame."""
     from sgdr.pipeline.predict import predict
 
@@ -238,7 +411,7 @@ def simulate_sequence_cameras(asset, model, params, binding, ground, n_frames, n
         n_frames,
         asset.fps,
         n_t,
-        asset.physics,
+        physics,
         asset.cameras,
         render_cfg,
         True,
@@ -247,7 +420,7 @@ def simulate_sequence_cameras(asset, model, params, binding, ground, n_frames, n
 
 
 @SIMULATE_CAMERAS.register("orbit")
-def simulate_orbit_cameras(asset, model, params, binding, ground, n_frames, n_t, render_cfg, progress):
+def simulate_orbit_cameras(asset, model, params, binding, ground, n_frames, n_t, render_cfg, progress, physics):
     """Frame t from orbit camera t: one turn around the object over the clip."""
     from sgdr.arrays import points_to_array3
     from sgdr.identify.common import posed, render_rgba_numpy
@@ -262,7 +435,7 @@ def simulate_orbit_cameras(asset, model, params, binding, ground, n_frames, n_t,
         n_frames,
         asset.fps,
         n_t,
-        asset.physics,
+        physics,
         [],
         render_cfg,
         False,
@@ -273,4 +446,37 @@ def simulate_orbit_cameras(asset, model, params, binding, ground, n_frames, n_t,
     for f in range(n_frames):
         g = posed(asset.gaussians, points_to_array3(traj.centres[f]))
         images.append((render_rgba_numpy(g, cams[f], render_cfg)[None] * 255.0 + 0.5).astype(np.uint8))
-    return Prediction(traj.anchors, traj.centres, np.stack(images)), cams
+    return Prediction(traj.anchors, traj.centres, np.stack(images), traj.velocities, traj.n_substeps), cams
+
+
+def simulation_momentum(asset: Asset, sim_cfg, pred) -> dict:
+    """`sgdr.pipeline.momentum.momentum_check` of a `simulate_asset` result under the same edits:
+    the rollout is re-run substep by substep (`internal_impulses`, with the n_t the rollout used)
+    to sum its spring forces; masses from the asset's spring model, gravity and ground as edited."""
+    from dataclasses import replace
+
+    from sgdr.arrays import to_numpy
+    from sgdr.physics import Ground
+    from sgdr.pipeline.momentum import internal_impulses, momentum_check
+    from sgdr.pipeline.predict import physical_params
+
+    if pred.velocities is None or not pred.n_substeps:
+        raise ValueError("the prediction has no anchor velocities or substeps (simulate_asset's rollouts have them)")
+    model, _ = asset.build()
+    values, point, _ = edited_values(asset, sim_cfg)
+    physics = replace(asset.physics, max_substeps=max(asset.physics.max_substeps, pred.n_substeps))
+    params = physical_params(model, physics, values)
+    ground = Ground(point, asset.ground_normal)
+    n_frames = pred.velocities.shape[0]
+    internal = internal_impulses(model, params, ground, n_frames, 1.0 / asset.fps, pred.n_substeps, physics)
+    verdict = momentum_check(
+        pred.velocities,
+        to_numpy(model.particle_mass),
+        internal,
+        np.asarray(values.get("gravity", (0.0, 0.0, -9.8)), float),
+        asset.ground_normal,
+        1.0 / asset.fps,
+        physics.springs,
+        float(sim_cfg.momentum_tolerance),
+    )
+    return {**verdict, "n_substeps": int(pred.n_substeps)}

@@ -23,6 +23,8 @@ class Prediction:
     anchors: np.ndarray  # [T, N_A, 3] anchor positions per frame, world, scene units
     centres: np.ndarray  # [T, M, 3] Gaussian centres per frame, world, scene units
     images: np.ndarray  # [T, V, H, W, 4] uint8 RGBA renders per frame and view (empty if not rendered)
+    velocities: np.ndarray | None = None  # [T, N_A, 3] anchor velocities per frame (None when loaded from disk)
+    n_substeps: int = 0  # substeps per frame the rollout used (more than asked after a retry; 0 = unknown)
 
 
 def physical_params(model, physics_cfg, values: dict):
@@ -71,9 +73,9 @@ def predict(
 ) -> Prediction:
     """Forward rollout of `n_frames` frames from rest with `params` (its v0), bound and rendered.
 
-    Returns anchors [T, N_A, 3], centres [T, M, 3] and, if render_views, images
-    [T, V, H, W, 4] uint8 for every camera in `cameras`: RGB over black and the accumulated
-    opacity (the report composites a ground behind it).
+    Returns anchors [T, N_A, 3], centres [T, M, 3], anchor velocities [T, N_A, 3], the substeps
+    per frame used and, if render_views, images [T, V, H, W, 4] uint8 for every camera in
+    `cameras`: RGB over black and the accumulated opacity (the report composites a ground behind it).
     """
     from sgdr.physics import SimState, rollout
 
@@ -89,7 +91,7 @@ def predict(
             physics_cfg,
             n_substeps=int(n_substeps),
         )
-        anchors, centres, images = [], [], []
+        anchors, centres, velocities, images = [], [], [], []
         frames = range(len(states))
         if progress:
             from tqdm import tqdm
@@ -99,10 +101,11 @@ def predict(
             x = states[f].x
             means = binding.apply(x)
             anchors.append(array3_to_points(x))
+            velocities.append(array3_to_points(states[f].v))
             centres.append(array3_to_points(means))
             if render_views:
                 g = posed(gaussians.detach(), means)
                 views = [render_rgba_numpy(g, cam, render_cfg) for cam in cameras]
                 images.append((np.stack(views) * 255.0 + 0.5).astype(np.uint8))
     imgs = np.stack(images) if images else np.zeros((0,), np.uint8)
-    return Prediction(np.stack(anchors), np.stack(centres), imgs)
+    return Prediction(np.stack(anchors), np.stack(centres), imgs, np.stack(velocities), int(states.n_substeps))

@@ -61,7 +61,7 @@ def strict_load(path: Path):
 
 
 def test_run_folder_holds_the_record(tiny_run):
-    _, _, out = tiny_run
+    _, cfg, out = tiny_run
     d = out.run_dir
     metrics = strict_load(d / "metrics.json")
     strict_load(d / "evaluate" / "scores.json")
@@ -71,6 +71,9 @@ def test_run_folder_holds_the_record(tiny_run):
     assert set(metrics["stage_seconds"]) == {"sequence", *STAGES}
     assert 0 < sum(metrics["stage_seconds"].values()) <= 60 * metrics["minutes"]
     assert (d / "config.yaml").exists()
+    # the momentum audit of the prediction: the springs' own push, per unit mass
+    audit = metrics["momentum"]
+    assert audit["springs"] == cfg.physics.springs and np.isfinite(audit["springs_dv_max_along_ground"])
     for name in (
         "report.html",
         "metric_curves.png",

@@ -276,3 +276,14 @@ def test_metrics_json_is_strict_when_no_pass_ran(cfg, tmp_path):
     assert m["dynamic_loss_first_pass"] is None and "no dynamic pass ran" in m["missing"]["dynamic_loss_first_pass"]
     assert m["future_cd"] is None and m["missing"]["future_cd"].startswith("the sequence has no ground-truth")
     assert m["identified"]["v0"] == [0.0, 0.0, 0.0]
+
+
+def test_momentum_gained_by_the_springs_is_a_warning(cfg):
+    """The predict stage's momentum audit: springs pushing the centre of mass along the ground
+    beyond recon.momentum_tolerance is warned about, naming the cause; below it, nothing."""
+    audit = {"springs": "directed", "springs_dv_max_along_ground": 0.3}
+    w = judge(_scores(future_cd=0.1), _dyn(), cfg.recon, cfg.physics, audit).warnings
+    assert len(w) == 1 and "gains momentum without an external cause" in w[0]
+    assert "0.300 scene units/s" in w[0] and "physics.springs=symmetric" in w[0]
+    quiet = {**audit, "springs_dv_max_along_ground": 0.5 * cfg.recon.momentum_tolerance}
+    assert judge(_scores(future_cd=0.1), _dyn(), cfg.recon, cfg.physics, quiet).warnings == []

@@ -222,7 +222,7 @@ def dynamics_load(ctx: RunContext, out: Path) -> dict:
 
 # ---------------------------------------------------------------------- 6. prediction (fit frames from frame 0, then the future)
 def predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.pipeline.predict import physical_params, predict
+    from sgdr.pipeline.predict import audit_momentum, physical_params, predict
 
     cfg, seq = ctx.cfg, ctx.seq
     params = physical_params(ctx.model, cfg.physics, ctx.identified)
@@ -243,6 +243,8 @@ def predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
     )
     np.savez(out / "trajectory.npz", anchors=pred.anchors, centres=pred.centres)
     np.save(out / "images.npy", pred.images)
+    momentum = audit_momentum(ctx.model, params, ctx.ground, seq.gravity, pred, seq.dt_frame, cfg.physics)
+    (out / "momentum.json").write_text(json.dumps(momentum, indent=1))
 
 
 def predict_load(ctx: RunContext, out: Path):
@@ -256,7 +258,8 @@ def predict_load(ctx: RunContext, out: Path):
         raise ValueError("predict outputs do not cover every frame and view of the sequence")
     if imgs.ndim != 5 or imgs.shape[-1] != 4:
         raise ValueError(f"predict/images.npy has shape {imgs.shape}, expected [T, V, H, W, 4] (RGBA)")
-    return Prediction(a, c, imgs)
+    momentum = json.loads((out / "momentum.json").read_text())
+    return Prediction(a, c, imgs, momentum=momentum)
 
 
 # ---------------------------------------------------------------------- 7. evaluation
@@ -345,7 +348,7 @@ def report_produce(ctx: RunContext, out: Path, ckpt) -> None:
         f"{seq.fps:g} fps, frames 0..{seq.n_fit - 1} fitted, {seq.n_fit}..{seq.n_frames - 1} predicted. "
         f"Preset {cfg.preset}, method {cfg.method}, physics.contact = {cfg.physics.contact}, seed {cfg.seed}."
     )
-    verdict = judge(scores, dyn, cfg.recon, cfg.physics)
+    verdict = judge(scores, dyn, cfg.recon, cfg.physics, ctx.values["predict"].momentum)
     write_report(out / "report.html", f"sgdr run {run}", verdict, sections, subtitle)
 
 

@@ -25,6 +25,34 @@ class Prediction:
     images: np.ndarray  # [T, V, H, W, 4] uint8 RGBA renders per frame and view (empty if not rendered)
     velocities: np.ndarray | None = None  # [T, N_A, 3] anchor velocities per frame (None when loaded from disk)
     n_substeps: int = 0  # substeps per frame the rollout used (more than asked after a retry; 0 = unknown)
+    momentum: dict | None = None  # the momentum audit of the rollout (`audit_momentum`), when made
+
+
+def audit_momentum(model, params, ground, gravity, pred: Prediction, dt_frame: float, physics_cfg) -> dict:
+    """How much momentum the springs of `pred`'s rollout added on their own (`sgdr.pipeline.momentum`):
+    the numbers of `momentum_check`, per unit mass (scene units / s). The directed springs of the
+    official model do not conserve momentum, so an identified stiffness field can push the
+    object along the ground with nothing external acting; the report warns about it.
+    gravity: [3] the rollout's, scene units / s²."""
+    from sgdr.arrays import to_numpy
+    from sgdr.pipeline.momentum import internal_impulses, momentum_check
+
+    if pred.velocities is None or not pred.n_substeps:
+        raise ValueError("audit_momentum needs the rollout's velocities and substeps (a fresh `predict`)")
+    n = pred.velocities.shape[0]
+    internal = internal_impulses(model, params, ground, n, dt_frame, pred.n_substeps, physics_cfg)
+    masses = to_numpy(model.particle_mass).reshape(-1)
+    check = momentum_check(
+        pred.velocities,
+        masses,
+        internal,
+        np.asarray(gravity, float),
+        ground.normal,
+        dt_frame,
+        physics_cfg.springs,
+        float("inf"),
+    )
+    return {k: v for k, v in check.items() if k not in ("gains_momentum", "warning", "tolerance")}
 
 
 def physical_params(model, physics_cfg, values: dict):

@@ -145,7 +145,7 @@ RECON_STAGE_FIELDS = {
         "contact_margin",
     ),
     "evaluate": ("eval_emd",),
-    "report": ("render_videos", "write_plys"),
+    "report": ("render_videos", "write_plys", "momentum_tolerance"),
 }
 
 
@@ -394,6 +394,7 @@ def run_metrics(cfg, seq_root: Path, stages: dict[str, StageResult], t_sequence:
             "restitution": dyn["restitution"],
             "v0": list(stages["velocity"].value["v0"]),
         },
+        "momentum": stages["predict"].value.momentum if "predict" in stages else None,
         "stages_skipped": [n for n, r in stages.items() if r.skipped],
         "stage_seconds": {"sequence": t_sequence, **{n: r.seconds for n, r in stages.items()}},
         "minutes": (time.time() - t_start) / 60.0,

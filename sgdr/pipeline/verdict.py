@@ -25,7 +25,12 @@ Warnings:
   (`eval_loss_final`) not below the one before (`eval_loss_initial`), or the last dynamic
   pass's training loss above the first's;
 - the future prediction worse than any baseline variant (still, constant velocity, ballistic);
-- no dynamic pass ran (the physical parameters are the initial guesses).
+- no dynamic pass ran (the physical parameters are the initial guesses);
+- the predicted rollout gains momentum without an external cause: the identified springs push
+  the centre of mass along the ground by more than `recon.momentum_tolerance` (scene units / s;
+  the momentum audit of the predict stage, `sgdr.pipeline.momentum`). The official directed
+  springs do not conserve momentum, so an uneven stiffness field can make the prediction slide
+  or drift on its own.
 """
 
 from __future__ import annotations
@@ -197,11 +202,34 @@ def _baseline_warnings(scores: dict) -> list[str]:
     return out
 
 
-def judge(scores: dict, dyn: dict, recon_cfg, physics_cfg) -> Verdict:
-    """The verdict and warnings of one run (the rules in the module docstring)."""
+def _momentum_warnings(momentum: dict | None, recon_cfg) -> list[str]:
+    if not momentum:
+        return []
+    along = _finite(momentum.get("springs_dv_max_along_ground"))
+    tol = float(recon_cfg.momentum_tolerance)
+    if along is None or along <= tol:
+        return []
+    springs = momentum.get("springs", "?")
+    cause = (
+        "the directed springs (physics.springs=directed, the official model) do not conserve momentum, so an "
+        "uneven stiffness field pushes the whole object; physics.springs=symmetric conserves it"
+        if springs == "directed"
+        else f"physics.springs={springs} should conserve momentum: this is a bug"
+    )
+    return [
+        f"The predicted motion gains momentum without an external cause: the identified springs push the centre "
+        f"of mass by up to {_num(along)} scene units/s along the ground (tolerance {_num(tol)}, "
+        f"recon.momentum_tolerance), so the prediction drifts or slides on its own: {cause}."
+    ]
+
+
+def judge(scores: dict, dyn: dict, recon_cfg, physics_cfg, momentum: dict | None = None) -> Verdict:
+    """The verdict and warnings of one run (the rules in the module docstring); momentum: the
+    predict stage's momentum audit (`sgdr.pipeline.predict.audit_momentum`), if made."""
     fit, fit_text = fit_verdict(scores)
     future, future_head, future_text = future_verdict(scores)
     warnings = _bound_warnings(dyn, recon_cfg, physics_cfg) + _loss_warnings(dyn) + _baseline_warnings(scores)
+    warnings += _momentum_warnings(momentum, recon_cfg)
     return Verdict(fit, future, f"Fit {fit}, {future_head}.", [fit_text, *future_text], warnings)
 
 

@@ -18,7 +18,7 @@ from sgdr.data import load_sequence
 from sgdr.evaluate.score import evaluate_prediction, strict_json
 from sgdr.pipeline.predict import Prediction
 from sgdr.pipeline.report import FIT_COLOUR, FUTURE_COLOUR, composite_ground, playback, video_frame
-from sgdr.pipeline.verdict import judge
+from sgdr.pipeline.verdict import judge, momentum_note
 from tests.browser import assert_report_reads_well
 
 DATA = Path(__file__).parent / "data"
@@ -278,12 +278,21 @@ def test_metrics_json_is_strict_when_no_pass_ran(cfg, tmp_path):
     assert m["identified"]["v0"] == [0.0, 0.0, 0.0]
 
 
-def test_momentum_gained_by_the_springs_is_a_warning(cfg):
-    """The predict stage's momentum audit: springs pushing the centre of mass along the ground
-    beyond recon.momentum_tolerance is warned about, naming the cause; below it, nothing."""
-    audit = {"springs": "directed", "springs_dv_max_along_ground": 0.3}
-    w = judge(_scores(future_cd=0.1), _dyn(), cfg.recon, cfg.physics, audit).warnings
-    assert len(w) == 1 and "gains momentum without an external cause" in w[0]
-    assert "0.300 scene units/s" in w[0] and "physics.springs=symmetric" in w[0]
-    quiet = {**audit, "springs_dv_max_along_ground": 0.5 * cfg.recon.momentum_tolerance}
-    assert judge(_scores(future_cd=0.1), _dyn(), cfg.recon, cfg.physics, quiet).warnings == []
+def test_momentum_audit_in_words(cfg):
+    """The predict stage's momentum audit: directed springs (never conserving momentum) get a
+    note saying how much they add; springs that should conserve it and do not get a warning."""
+    audit = {
+        "springs": "directed",
+        "springs_dv_max": 3.0,
+        "springs_dv_max_along_ground": 0.3,
+        "springs_dv_max_along_normal": 2.9,
+        "ground_dv_end_along_ground": 0.25,
+    }
+    assert judge(_scores(future_cd=0.1), _dyn(), cfg.recon, cfg.physics, audit).warnings == []
+    note = momentum_note(audit)
+    assert "do not conserve momentum" in note and "0.300 scene units/s along the ground" in note
+    broken = {**audit, "springs": "symmetric"}
+    w = judge(_scores(future_cd=0.1), _dyn(), cfg.recon, cfg.physics, broken).warnings
+    assert len(w) == 1 and "a bug" in w[0] and "3.00 scene units/s" in w[0]
+    fine = {**broken, "springs_dv_max": 0.5 * cfg.recon.momentum_tolerance}
+    assert judge(_scores(future_cd=0.1), _dyn(), cfg.recon, cfg.physics, fine).warnings == []

@@ -95,8 +95,8 @@ class ReconConfig:
     #                               along its normal, scene units: the anchors are interior points,
     #                               the visible surface lies about one Gaussian scale beyond them
     #                               (< 0 = the median scale of the static fit's Gaussians)
-    momentum_tolerance: float = 0.05  # scene units / s: the report warns when the identified springs push the
-    #                                   predicted centre of mass along the ground by more (directed springs)
+    momentum_tolerance: float = 0.05  # scene units / s: the report warns when momentum-conserving springs
+    #                                   (physics.springs=symmetric) push the predicted centre of mass by more
     simulate: SimulateConfig = field(default_factory=SimulateConfig)  # experiments/simulate.py
 
 

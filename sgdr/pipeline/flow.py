@@ -332,6 +332,7 @@ def report_produce(ctx: RunContext, out: Path, ckpt) -> None:
         cfg.physics,
         seq.n_fit,
         videos,
+        ctx.values["predict"].momentum,
     )
     if cfg.recon.write_plys:
         colours = 1.0 / (1.0 + np.exp(-ctx.gaussians.to_numpy()["color_logits"]))

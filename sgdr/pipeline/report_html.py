@@ -194,11 +194,13 @@ def run_sections(
     physics_cfg,
     n_fit: int,
     videos: Sequence[tuple[Path, str]] = (),
+    momentum: dict | None = None,
 ) -> list[Section]:
     """The base sections of a run's report; writes their plots into `out` (metric_curves.png,
-    losses.png, stiffness.png). videos: (file in `out`, caption) already written."""
+    losses.png, stiffness.png). videos: (file in `out`, caption) already written; momentum: the
+    predict stage's momentum audit (`sgdr.pipeline.predict.audit_momentum`), if made."""
     from sgdr.pipeline import report
-    from sgdr.pipeline.verdict import parameter_rows
+    from sgdr.pipeline.verdict import momentum_note, parameter_rows
 
     sections = []
     curves = scores.get("per_frame", {})
@@ -240,7 +242,8 @@ def run_sections(
     sections.append(
         Section(
             "Identified parameters",
-            table(("parameter", "identified", "allowed range"), parameter_rows(dyn, velocity, recon_cfg, physics_cfg)),
+            table(("parameter", "identified", "allowed range"), parameter_rows(dyn, velocity, recon_cfg, physics_cfg))
+            + (paragraph(momentum_note(momentum)) if momentum else ""),
         )
     )
     return sections

@@ -26,11 +26,12 @@ Warnings:
   pass's training loss above the first's;
 - the future prediction worse than any baseline variant (still, constant velocity, ballistic);
 - no dynamic pass ran (the physical parameters are the initial guesses);
-- the predicted rollout gains momentum without an external cause: the identified springs push
-  the centre of mass along the ground by more than `recon.momentum_tolerance` (scene units / s;
-  the momentum audit of the predict stage, `sgdr.pipeline.momentum`). The official directed
-  springs do not conserve momentum, so an uneven stiffness field can make the prediction slide
-  or drift on its own.
+- springs that should conserve momentum (physics.springs=symmetric) pushing the predicted
+  centre of mass by more than `recon.momentum_tolerance` (scene units / s; the predict stage's
+  momentum audit, `sgdr.pipeline.momentum`): a bug. The official directed springs never conserve
+  momentum; how much they add is stated under the parameters (`momentum_note`), not warned
+  about: on the small torus they add 2-3 scene units/s along the ground and 19-27 into it in
+  good and bad runs alike, and the ground contact absorbs most of it.
 """
 
 from __future__ import annotations
@@ -203,24 +204,38 @@ def _baseline_warnings(scores: dict) -> list[str]:
 
 
 def _momentum_warnings(momentum: dict | None, recon_cfg) -> list[str]:
-    if not momentum:
+    """Springs that should conserve momentum but pushed the centre of mass beyond the tolerance.
+    (The directed springs never conserve it: `momentum_note` states how much they add.)"""
+    if not momentum or momentum.get("springs") == "directed":
         return []
-    along = _finite(momentum.get("springs_dv_max_along_ground"))
+    push = _finite(momentum.get("springs_dv_max"))
     tol = float(recon_cfg.momentum_tolerance)
-    if along is None or along <= tol:
+    if push is None or push <= tol:
         return []
-    springs = momentum.get("springs", "?")
-    cause = (
-        "the directed springs (physics.springs=directed, the official model) do not conserve momentum, so an "
-        "uneven stiffness field pushes the whole object; physics.springs=symmetric conserves it"
-        if springs == "directed"
-        else f"physics.springs={springs} should conserve momentum: this is a bug"
-    )
     return [
-        f"The predicted motion gains momentum without an external cause: the identified springs push the centre "
-        f"of mass by up to {_num(along)} scene units/s along the ground (tolerance {_num(tol)}, "
-        f"recon.momentum_tolerance), so the prediction drifts or slides on its own: {cause}."
+        f"The predicted motion gains momentum without an external cause: its springs "
+        f"(physics.springs={momentum.get('springs')}, which should conserve momentum) push the centre of mass by "
+        f"up to {_num(push)} scene units/s (tolerance {_num(tol)}, recon.momentum_tolerance): a bug, please report it."
     ]
+
+
+def momentum_note(momentum: dict) -> str:
+    """What the springs of the predicted rollout add to the momentum on their own, in words."""
+    along, normal = momentum.get("springs_dv_max_along_ground"), momentum.get("springs_dv_max_along_normal")
+    ground = momentum.get("ground_dv_end_along_ground")
+    if momentum.get("springs") != "directed":
+        return (
+            f"Momentum: the springs (physics.springs={momentum.get('springs')}) add {_num(float(along or 0))} scene "
+            "units/s along the ground on their own (they conserve momentum: only gravity and the ground act)."
+        )
+    return (
+        f"Momentum: the directed springs (physics.springs=directed, the official model) do not conserve momentum. "
+        f"Over the predicted rollout they push the centre of mass by up to {_num(float(along))} scene units/s along "
+        f"the ground and {_num(float(normal))} into or away from it, with nothing external acting; the ground "
+        f"contact absorbs most of it (its friction took {_num(float(ground))} along the ground by the last frame). "
+        "On a slippery ground, or with edited friction, this push moves the object on its own "
+        "(experiments/simulate.py warns); physics.springs=symmetric conserves momentum."
+    )
 
 
 def judge(scores: dict, dyn: dict, recon_cfg, physics_cfg, momentum: dict | None = None) -> Verdict:

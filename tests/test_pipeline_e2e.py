@@ -105,7 +105,8 @@ def test_report_opens_in_a_browser_with_its_verdict(tiny_run):
     state = assert_report_reads_well(out.run_dir / "report" / "report.html")
     m = out.metrics
     ratio = m["future_cd"] / m["baseline_future_cd"]
-    factor = f"{1 / ratio:.1f}x better" if ratio < 1 else f"{ratio:.1f}x worse"
+    r = max(ratio, 1 / ratio)
+    factor = (f"{r:.1f}x" if r >= 1.5 else f"{100 * (r - 1):.1f}%") + (" better" if ratio < 1 else " worse")
     assert f"future {factor} than the physics-free baseline" in state["verdict_text"]
     assert f"{m['fit_psnr']:.1f} dB" in state["verdict_text"]
     assert len(state["videos"]) == 2 and all(v["duration"] >= 4.0 for v in state["videos"])

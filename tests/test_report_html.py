@@ -104,12 +104,15 @@ def test_verdict_states_fit_quality_and_future_against_the_baseline(cfg):
     for psnr, quality in ((27.9, "fair"), (22.0, "fair"), (21.9, "poor"), (None, "unknown")):
         assert judge(_scores(fit_psnr=psnr), _dyn(), cfg.recon, cfg.physics).fit_quality == quality
     assert "infinitely worse" in judge(_scores(base=0.0), _dyn(), cfg.recon, cfg.physics).headline
+    # a near tie reads as a percentage (0.717 against 0.686 is not "1.0x worse")
+    close = judge(_scores(future_cd=0.717, base=0.686), _dyn(), cfg.recon, cfg.physics).headline
+    assert close == "Fit good, future 4.5% worse than the physics-free baseline."
     good = judge(_scores(future_cd=0.3, cv=0.2), _dyn(), cfg.recon, cfg.physics)
     assert good.future == "better" and "2.1x better" in good.headline
     assert any("constant-velocity" in s for s in good.sentences)
     assert [w for w in good.warnings if "baseline" in w] == [
         "The future prediction (Chamfer distance 0.300) is worse than the physics-free 'constant velocity' baseline "
-        "(0.200), 1.5x."
+        "(0.200), 1.5x worse."
     ]
 
 

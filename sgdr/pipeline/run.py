@@ -240,7 +240,8 @@ def ensure_sequence(cfg, generate_if_missing: bool = True) -> Path:
         from sgdr.data.layouts import detect_layout
 
         if not path.is_dir():
-            raise SequenceError(f"sequence={cfg.sequence}: folder {path} does not exist")
+            what = "is a file, not a sequence folder" if path.exists() else "does not exist"
+            raise SequenceError(f"sequence={cfg.sequence}: {path} {what}")
         detect_layout(path)
         return path
     if not (path / "sequence.json").exists():

@@ -83,10 +83,12 @@ def fit_verdict(scores: dict) -> tuple[str, str]:
 
 
 def _times(a: float, b: float) -> str:
-    """ "2.9x" for a / b, with the degenerate ratios in words."""
+    """ "2.9x" for a / b >= 1.5, "4.5%" below (a 1.045 ratio is not "1.0x"), the degenerate
+    ratios in words."""
     if b > 0:
-        return f"{a / b:.1f}x"
-    return "infinitely" if a > 0 else "1.0x"
+        r = a / b
+        return f"{r:.1f}x" if r >= 1.5 - 1e-9 else f"{100.0 * (r - 1.0):.1f}%"
+    return "infinitely" if a > 0 else "0%"
 
 
 def future_verdict(scores: dict) -> tuple[str, str, list[str]]:
@@ -198,7 +200,7 @@ def _baseline_warnings(scores: dict) -> list[str]:
         if b is not None and b < cd:
             out.append(
                 f"The future prediction (Chamfer distance {_num(cd)}) is worse than the physics-free "
-                f"'{name.replace('_', ' ')}' baseline ({_num(b)}), {_times(cd, b)}."
+                f"'{name.replace('_', ' ')}' baseline ({_num(b)}), {_times(cd, b)} worse."
             )
     return out
 

@@ -1,0 +1,112 @@
+"""Twin sequences: an asset simulated by its own spring-mass model with known parameters and
+rendered by its own renderer, so the truth lies exactly in the model class (issue 14, §5).
+
+A posterior computed with the same asset on a twin's images must cover the twin's truth; over
+many twins with truths drawn from the prior this is simulation-based calibration. Unlike the
+benchmark generator (`sgdr.synth`: MLS-MPM + Mitsuba), nothing here is outside the model:
+same anchors, springs, skinning, Gaussians, cameras, contact model and substeps.
+
+    twin_sequence("outputs/torus_tiny_s0/asset", "/tmp/twin", {"log10_k_shift": 0.2, "friction": 0.3})
+
+The truth is given relative to the asset's identified values: `log10_k_shift` is added to
+every anchor's log10 k_i (the stiffness field keeps its shape); `kappa`, `friction`,
+`restitution`, `zeta0` replace the asset's values; `v0` [3] replaces its initial velocity.
+Keys left out keep the asset's values. The written sequence (sgdr layout,
+`sgdr.data.load_sequence`) has the asset's cameras, frame count, fit split, fps and gravity;
+its ground is the asset's contact plane (the plane the anchors touch). Reconstructing a twin
+with the pipeline therefore needs `recon.contact_margin=0` to stay in the model class (the
+pipeline raises the recorded ground by the Gaussians' median scale otherwise).
+`gt/particles_<f>.npy` hold the bound Gaussian centres (what the evaluation scores against),
+`gt/params.json` {"twin": true, "asset": ..., "truth": {...}, "values": {...}}.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+TRUTH_KEYS = ("log10_k_shift", "kappa", "friction", "restitution", "zeta0", "v0")
+
+
+def twin_values(asset, truth: dict) -> dict:
+    """The asset's parameter values with `truth` applied (see the module docstring)."""
+    unknown = sorted(set(truth) - set(TRUTH_KEYS))
+    if unknown:
+        raise ValueError(f"twin truth: unknown keys {unknown}; known: {list(TRUTH_KEYS)}")
+    values = dict(asset.values)
+    values["log10_k"] = np.asarray(values["log10_k"], float) + float(truth.get("log10_k_shift", 0.0))
+    for key in ("kappa", "friction", "restitution", "zeta0"):
+        if key in truth:
+            values[key] = float(truth[key])
+    if "v0" in truth:
+        values["v0"] = np.asarray(truth["v0"], float).reshape(3)
+    if "restitution" in truth and not 0.0 <= values["restitution"] <= 1.0:
+        raise ValueError(f"twin truth: restitution {values['restitution']} outside [0, 1]")
+    return values
+
+
+def hit_frame(anchors: np.ndarray, ground_point, ground_normal, tol: float | None = None) -> int:
+    """The first frame in which the lowest anchor is within `tol` of the ground plane (default:
+    1e-3 of the object's extent); frames before it are free fall. 1 when it starts in contact."""
+    n = np.asarray(ground_normal, float) / np.linalg.norm(ground_normal)
+    heights = (np.asarray(anchors, float) - np.asarray(ground_point, float)) @ n  # [T, N_A]
+    tol = 1e-3 * float(np.ptp(anchors[0], axis=0).max()) if tol is None else float(tol)
+    touching = np.flatnonzero(heights.min(axis=1) <= tol)
+    return int(max(touching[0], 1)) if touching.size else int(anchors.shape[0] - 1)
+
+
+def twin_sequence(asset_dir, out, truth: dict, render_cfg=None, progress: bool = False) -> Path:
+    """Simulate the asset in `asset_dir` with `truth`, render every camera and frame, write an
+    sgdr-layout sequence to `out`; returns `out`. render_cfg: `RenderConfig` (default: its
+    defaults)."""
+    from sgdr.data import write_sequence
+    from sgdr.physics import Ground
+    from sgdr.pipeline.asset import load_asset
+    from sgdr.pipeline.predict import physical_params, predict
+    from sgdr.render.config import RenderConfig
+
+    asset = load_asset(asset_dir)
+    values = twin_values(asset, truth)
+    model, binding = asset.build()
+    params = physical_params(model, asset.physics, values)
+    ground = Ground(asset.ground_point, asset.ground_normal)
+    pred = predict(
+        model,
+        params,
+        binding,
+        asset.gaussians,
+        ground,
+        asset.n_frames,
+        asset.fps,
+        asset.n_substeps,
+        asset.physics,
+        asset.cameras,
+        render_cfg or RenderConfig(),
+        True,
+        progress,
+    )
+    images = np.transpose(pred.images.astype(np.float32) / 255.0, (1, 0, 2, 3, 4))  # [V, T, H, W, 4]
+    plain = {k: (np.asarray(v).tolist() if np.ndim(v) else float(v)) for k, v in values.items()}
+    return write_sequence(
+        out,
+        cameras=asset.cameras,
+        images=images,
+        fps=asset.fps,
+        n_fit=asset.n_fit,
+        hit_frame=hit_frame(pred.anchors, asset.ground_point, asset.ground_normal),
+        ground_point=asset.ground_point,
+        ground_normal=asset.ground_normal,
+        gravity=np.asarray(values["gravity"], float),
+        gt_particles=[c.astype(np.float32) for c in pred.centres],
+        gt_params={
+            "twin": True,
+            "asset": str(Path(asset_dir).resolve()),
+            "truth": json.loads(json.dumps({k: np.asarray(v).tolist() for k, v in truth.items()})),
+            "values": {k: v for k, v in plain.items() if k != "log10_k"},
+            "log10_k_mean": float(np.mean(values["log10_k"])),
+            "n_substeps": int(pred.n_substeps),
+        },
+        gt_effects={},
+    )

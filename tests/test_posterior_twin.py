@@ -1,0 +1,100 @@
+"""Twin sequences (sgdr.posterior.twin): an asset's own model, simulated with a known truth and
+rendered, written as a sequence that sgdr reads back, with the truth recorded."""
+
+import json
+
+import numpy as np
+import pytest
+
+from sgdr.anchors.config import AnchorConfig
+from sgdr.cameras import Camera
+from sgdr.data import load_sequence
+from sgdr.gaussians.model import Gaussians
+from sgdr.physics import PhysicsConfig
+from sgdr.pipeline.asset import load_asset, save_asset
+from sgdr.posterior.twin import hit_frame, twin_sequence, twin_values
+
+
+@pytest.fixture(scope="module")
+def asset_dir(tmp_path_factory):
+    """A small renderable asset: 300 Gaussians in a 0.2-wide ball 0.08 above the ground z = 0,
+    48 anchors, thrown down and sideways, two 32x24 cameras."""
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(300, 3))
+    pts = 0.1 * pts / np.linalg.norm(pts, axis=1, keepdims=True) * rng.uniform(0.3, 1.0, (300, 1)) ** (1 / 3)
+    centres = pts + [0.5, 0.5, 0.2]
+    anchors = centres[rng.choice(300, 48, replace=False)]
+    gaussians = Gaussians.isotropic(centres, 0.015, rng.uniform(0.2, 0.9, (300, 3)), 0.8)
+    cams = [
+        Camera.look_at(
+            [0.5 + 0.9 * np.cos(a), 0.5 + 0.9 * np.sin(a), 0.5], [0.5, 0.5, 0.12], [0, 0, 1], 45, 32, 24, f"c{i}"
+        )
+        for i, a in enumerate((0.3, 2.0))
+    ]
+
+    class Seq:  # what save_asset reads of a sequence
+        ground_point, ground_normal, fps, n_frames, n_fit, cameras = (
+            np.zeros(3),
+            np.array([0, 0, 1.0]),
+            24.0,
+            8,
+            5,
+            cams,
+        )
+
+    values = {
+        "log10_k": rng.uniform(2.6, 3.0, 48),
+        "kappa": 0.0,
+        "friction": 0.5,
+        "restitution": 0.0,
+        "v0": np.array([0.2, 0.0, -0.8]),
+        "gravity": np.array([0.0, 0.0, -9.8]),
+    }
+    out = tmp_path_factory.mktemp("twin") / "asset"
+    physics = PhysicsConfig(contact="coulomb", n_c=4)
+    return save_asset(
+        out, gaussians, anchors, values, physics, AnchorConfig(n_k=8, n_b=4, binding="displacement"), Seq, 40, centres
+    )
+
+
+def test_twin_is_read_back_with_its_truth(asset_dir, tmp_path):
+    truth = {"log10_k_shift": 0.3, "friction": 0.2}
+    seq = load_sequence(twin_sequence(asset_dir, tmp_path / "twin", truth))
+    assert seq.n_frames == 8 and seq.n_fit == 5 and seq.n_views == 2
+    params = seq.gt_params()
+    assert params["twin"] is True and params["truth"] == truth
+    asset = load_asset(asset_dir)
+    assert params["log10_k_mean"] == pytest.approx(float(np.mean(asset.values["log10_k"])) + 0.3)
+    assert params["values"]["friction"] == 0.2 and params["values"]["kappa"] == 0.0
+    # (displacement binding: frame 0 puts every Gaussian at its rest centre, checked below)
+    # the object is visible and falls: its mask moves between frame 0 and the last frame
+    first, last = seq.image(0, 0)[..., 3], seq.image(0, seq.n_frames - 1)[..., 3]
+    assert first.sum() > 5 and np.abs(first - last).sum() > 1
+    assert 1 <= seq.hit_frame < seq.n_frames
+    gt0 = seq.gt_particles(0)
+    assert gt0.shape == (300, 3) and np.allclose(gt0, asset.rest_centres, atol=1e-5)
+
+
+def test_the_truth_changes_the_motion_and_nothing_else_does(asset_dir, tmp_path):
+    base = load_sequence(twin_sequence(asset_dir, tmp_path / "base", {}))
+    again = load_sequence(twin_sequence(asset_dir, tmp_path / "again", {}))
+    stiff = load_sequence(twin_sequence(asset_dir, tmp_path / "stiff", {"log10_k_shift": 1.0}))
+    last = base.n_frames - 1
+    assert np.allclose(base.gt_particles(last), again.gt_particles(last), atol=1e-6)
+    assert np.abs(base.gt_particles(last) - stiff.gt_particles(last)).max() > 1e-3
+    assert json.loads((tmp_path / "base" / "gt" / "effects.json").read_text()) == {}
+
+
+def test_bad_truths_are_refused(asset_dir):
+    asset = load_asset(asset_dir)
+    with pytest.raises(ValueError, match="unknown keys"):
+        twin_values(asset, {"stiffness": 2.0})
+    with pytest.raises(ValueError, match="restitution"):
+        twin_values(asset, {"restitution": 1.5})
+
+
+def test_hit_frame():
+    z = np.array([0.3, 0.1, 0.0, 0.0])  # lowest anchor height per frame
+    anchors = np.stack([np.array([[0.0, 0.0, h], [0.1, 0.1, h + 0.1]]) for h in z])
+    assert hit_frame(anchors, np.zeros(3), [0, 0, 1]) == 2
+    assert hit_frame(anchors[2:], np.zeros(3), [0, 0, 1]) == 1  # in contact from the start

@@ -45,7 +45,7 @@ class PosteriorConfig:
     n_walkers: int = 16  # walkers per ensemble (>= 2 x parameters)
     n_steps: int = 400  # steps per ensemble
     n_ensembles: int = 4  # independent ensembles (R-hat and ESS across them)
-    init_ball: float = 0.02  # walkers start MAP + init_ball x prior width x N(0, 1)
+    init_ball: float = 0.05  # walkers start MAP + init_ball x prior width x N(0, 1)
     # convergence criteria
     tau_factor: float = 50.0  # chains must be >= tau_factor x the integrated autocorrelation time
     rhat_max: float = 1.01  # rank-normalised split R-hat across ensembles, every parameter

@@ -65,7 +65,14 @@ def loop_rollout(model, base_params: dict, samples: dict, ground, n_frames: int,
             p = physical_params(model, cfg, sample_values(base_params, samples, i))
             try:
                 states = rollout(
-                    model, p, SimState.at_rest(model, p.v0), ground, int(n_frames), float(dt_frame), cfg, n_substeps=int(n_substeps)
+                    model,
+                    p,
+                    SimState.at_rest(model, p.v0),
+                    ground,
+                    int(n_frames),
+                    float(dt_frame),
+                    cfg,
+                    n_substeps=int(n_substeps),
                 )
             except SimulationUnstable:
                 continue

@@ -15,7 +15,8 @@ ensembles, each with its own seed and its own walkers started in a small ball ar
 Convergence (`diagnose`), every criterion required, its failures listed:
   1. τ: the integrated autocorrelation time of every parameter in every ensemble
      (`emcee.autocorr.integrated_time(..., quiet=True)`, averaged over the walkers as emcee
-     does), finite, and every chain at least `posterior.tau_factor` (50) x max τ long;
+     does), finite, and every chain at least `posterior.tau_factor` (50) x max τ long; every
+     walker accepted at least one move (a walker that never moved has no τ and is stuck);
   2. R-hat <= `posterior.rhat_max` and 3. bulk and tail ESS >= `posterior.ess_min`, with ArviZ
      (rank-normalised split R-hat, Vehtari et al. 2021) ACROSS the ensembles: chain = ensemble.
      The walkers of one ensemble are not independent chains (the stretch move couples them), so
@@ -161,11 +162,19 @@ def diagnose(chains: np.ndarray, names: list, post_cfg, acceptance: np.ndarray) 
     import emcee
 
     n_ens, n_steps, n_walk, dim = chains.shape
-    tau = np.zeros((n_ens, dim))
+    tau = np.full((n_ens, dim), np.nan)
+    stuck = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # quiet=True still warns; the criterion below says it
         for e in range(n_ens):
-            tau[e] = emcee.autocorr.integrated_time(chains[e], quiet=True)
+            for j in range(dim):
+                # walkers whose chain never changed have no autocorrelation (0/0); emcee's
+                # walker average would turn one of them into a NaN τ
+                moved = np.ptp(chains[e, :, :, j], axis=0) > 0
+                if moved.any():
+                    tau[e, j] = emcee.autocorr.integrated_time(chains[e][:, moved, j : j + 1], quiet=True)[0]
+                if moved.sum() < n_walk:
+                    stuck.append(f"ensemble {e + 1} {names[j]}: {n_walk - int(moved.sum())} of {n_walk}")
     failed = []
     tau_ok = bool(np.all(np.isfinite(tau)) and np.all(tau > 0))
     tau_max = float(np.max(tau)) if tau_ok else float("nan")
@@ -173,8 +182,10 @@ def diagnose(chains: np.ndarray, names: list, post_cfg, acceptance: np.ndarray) 
         burn, thin = int(math.ceil(2 * tau_max)), max(1, int(0.5 * float(np.min(tau))))
     if not tau_ok or burn > n_steps // 2:
         burn, thin = n_steps // 2, 1
+    if stuck:
+        failed.append("walkers that never moved (no accepted step): " + ", ".join(stuck))
     if not tau_ok:
-        failed.append("the autocorrelation time τ could not be estimated (a chain did not move)")
+        failed.append("the autocorrelation time τ could not be estimated for every parameter and ensemble")
     elif n_steps < post_cfg.tau_factor * tau_max:
         failed.append(
             f"chains of {n_steps} steps are {n_steps / tau_max:.1f} τ long (max τ = {tau_max:.1f} steps), "
@@ -195,12 +206,18 @@ def diagnose(chains: np.ndarray, names: list, post_cfg, acceptance: np.ndarray) 
     if bad_r:
         failed.append(f"R-hat above {post_cfg.rhat_max:g} across the ensembles: {', '.join(bad_r)}")
     bad_e = [
-        f"{n} {min(ess_bulk[n], ess_tail[n]):.0f}" for n in names if not min(ess_bulk[n], ess_tail[n]) >= post_cfg.ess_min
+        f"{n} {min(ess_bulk[n], ess_tail[n]):.0f}"
+        for n in names
+        if not min(ess_bulk[n], ess_tail[n]) >= post_cfg.ess_min
     ]
     if bad_e:
         failed.append(f"ESS (bulk or tail) below {post_cfg.ess_min:g}: {', '.join(bad_e)}")
     acc = np.asarray(acceptance, float).mean(axis=1)  # [E]
-    bad_a = [f"ensemble {e + 1} {a:.2f}" for e, a in enumerate(acc) if not post_cfg.acceptance_min <= a <= post_cfg.acceptance_max]
+    bad_a = [
+        f"ensemble {e + 1} {a:.2f}"
+        for e, a in enumerate(acc)
+        if not post_cfg.acceptance_min <= a <= post_cfg.acceptance_max
+    ]
     if bad_a:
         failed.append(
             f"acceptance fraction outside [{post_cfg.acceptance_min:g}, {post_cfg.acceptance_max:g}]: {', '.join(bad_a)}"

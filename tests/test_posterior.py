@@ -136,6 +136,10 @@ def test_likelihood_prefers_the_twins_truth(tiny):
         asset.physics,
     )
     assert stable.all()
+    # the truth is in the model class: the rollout contract + NumPy binding reproduce the twin's centres
+    full = CentreMap(asset, 0)(pos[0])
+    for f in range(asset.n_fit):
+        np.testing.assert_allclose(full[f], seq.gt_particles(f), atol=1e-5)
     d = discrepancy(obs, CentreMap(asset, 128)(pos[:, obs.frames]))
     lik = SilhouetteLikelihood.at_map(obs, d[0], 0.5, 1.0)
     ll = lik.log_likelihood(d)

@@ -21,9 +21,11 @@ Convergence (`diagnose`), every criterion required, its failures listed:
      (rank-normalised split R-hat, Vehtari et al. 2021) ACROSS the ensembles: chain = ensemble.
      The walkers of one ensemble are not independent chains (the stretch move couples them), so
      R-hat across walkers is not valid. Each ensemble's draws are its post-burn-in, thinned
-     states, walkers of one step after another (step-major). Thinning by about τ/2 leaves the
-     successive steps nearly uncorrelated, so this flattening keeps ArviZ's per-chain
-     autocorrelation estimate meaningful; the split halves then compare early and late steps;
+     states, collapsed over the walkers in two orders: for R-hat step-major (the walkers of one
+     step, then the next step), so the split halves compare early with late steps and a drift
+     shows; for ESS walker-major (one walker's steps, then the next walker's), so the
+     autocorrelation ArviZ estimates along the draws is each walker's own over time (step-major
+     would put independent-looking neighbouring walkers side by side and overstate the ESS);
   4. the mean acceptance fraction of every ensemble in [acceptance_min, acceptance_max]
      (the stretch move's healthy range is about 0.2-0.5).
 Burn-in = 2 max τ steps and thinning = max(1, min τ / 2) (emcee's guidance), both from the
@@ -193,12 +195,14 @@ def diagnose(chains: np.ndarray, names: list, post_cfg, acceptance: np.ndarray) 
         )
     kept = chains[:, burn::thin]  # [E, K, W, D]
     draws = kept.reshape(n_ens, -1, dim)  # step-major: the walkers of one step, then the next step
-    idata = az.from_dict(posterior={n: draws[..., j] for j, n in enumerate(names)})
+    by_walker = kept.transpose(0, 2, 1, 3).reshape(n_ens, -1, dim)  # walker-major: one walker's steps, then the next
+    step_major = az.from_dict(posterior={n: draws[..., j] for j, n in enumerate(names)})
+    walker_major = az.from_dict(posterior={n: by_walker[..., j] for j, n in enumerate(names)})
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        rhat = az.rhat(idata, method="rank")
-        ess_bulk = az.ess(idata, method="bulk")
-        ess_tail = az.ess(idata, method="tail")
+        rhat = az.rhat(step_major, method="rank")
+        ess_bulk = az.ess(walker_major, method="bulk")
+        ess_tail = az.ess(walker_major, method="tail")
     rhat = {n: float(rhat[n].values) for n in names}
     ess_bulk = {n: float(ess_bulk[n].values) for n in names}
     ess_tail = {n: float(ess_tail[n].values) for n in names}

@@ -216,12 +216,12 @@ def test_tiny_posterior_on_a_twin(tiny):
     assert all(np.isfinite(pred["median_cd_per_frame"]))
     with np.load(out / "samples.npz") as z:
         assert z["chains"].shape == (4, 24, 6, 2) and z["kept"].shape[1] == 2
-    for name in ("corner.png", "traces.png", "predictive.png"):
+    for name in ("corner.png", "traces.png", "predictive.png", "ensemble.mp4"):
         assert (out / name).stat().st_size > 1000, name
     page = (run_dir / "report" / "report.html").read_text()
     section = page[page.index('<section id="posterior">') :]
     assert section.index("Not converged") < section.index("<table>")
-    assert "5%" in section and "R-hat" in section and "uniform" in section
+    assert "5%" in section and "R-hat" in section and "uniform" in section and "<video" in section
     # logged into the run's MLflow run
     from mlflow.tracking import MlflowClient
 

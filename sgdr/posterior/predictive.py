@@ -23,7 +23,8 @@ def heights(centres: np.ndarray, ground_point, ground_normal) -> tuple[np.ndarra
 
 def predictive(rollout_all, centre_map, problem, samples: np.ndarray, median: np.ndarray, n_draws: int, seq, seed=0):
     """Bands and truth over every frame. rollout_all(samples) -> (positions [S, T, N_A, 3], stable);
-    samples [N, D] the kept posterior samples; median [D]. Returns a JSON-ready dict."""
+    samples [N, D] the kept posterior samples; median [D]. Returns (a JSON-ready dict, centres
+    [S, T, P, 3] of the median (index 0) and the draws, stable [S])."""
     from sgdr.evaluate.geometry import chamfer_distance
 
     rng = np.random.default_rng(seed)
@@ -69,7 +70,43 @@ def predictive(rollout_all, centre_map, problem, samples: np.ndarray, median: np
             )
             out[f"{name}_truth_inside_fit"] = float(inside[: seq.n_fit].mean())
             out[f"{name}_truth_inside_future"] = float(inside[seq.n_fit :].mean()) if t.size > seq.n_fit else None
-    return out
+    return out, centres, ok
+
+
+def ensemble_video(seq, centres: np.ndarray, stable: np.ndarray, path, max_views: int = 4, size: int = 192):
+    """A video of the ensemble: for up to `max_views` views, the observed image (over dark grey)
+    with the projected bound centres of every posterior draw (blue, one dot each) and of the
+    posterior median (orange) on top, frame by frame over fit and future; a green bar over fit
+    frames, an orange one over future frames. centres [S, T, P, 3] with the median at index 0."""
+    from sgdr.pipeline.report import playback, tile, write_video
+
+    n_v = min(max_views, len(seq.cameras))
+    views = sorted({int(round(i * len(seq.cameras) / n_v)) % len(seq.cameras) for i in range(n_v)})
+    n_t = min(centres.shape[1], seq.n_frames)
+    frames = []
+    for f in range(n_t):
+        cells = []
+        for v in views:
+            cam = seq.cameras[v]
+            scale = max(1, size // max(cam.width, cam.height))
+            rgba = seq.image(v, f)
+            img = rgba[..., :3] * rgba[..., 3:] + 0.15 * (1 - rgba[..., 3:])
+            img = np.repeat(np.repeat(img, scale, axis=0), scale, axis=1)
+            for s in range(centres.shape[0]):
+                if not stable[s]:
+                    continue
+                uv, z = cam.project(centres[s, f])
+                px = np.floor(uv[z > 0] * scale).astype(int)
+                inside = (px[:, 0] >= 0) & (px[:, 0] < img.shape[1]) & (px[:, 1] >= 0) & (px[:, 1] < img.shape[0])
+                px = px[inside]
+                colour, alpha = (np.array([0.95, 0.55, 0.1]), 0.9) if s == 0 else (np.array([0.25, 0.5, 0.95]), 0.35)
+                img[px[:, 1], px[:, 0]] = (1 - alpha) * img[px[:, 1], px[:, 0]] + alpha * colour
+            bar = np.zeros((max(3, scale), img.shape[1], 3))
+            bar[:] = (0.24, 0.71, 0.29) if f < seq.n_fit else (0.96, 0.65, 0.14)
+            cells.append(np.concatenate([bar, img], axis=0))
+        frames.append(tile(cells, cols=len(cells)))
+    fps, repeat = playback(n_t)
+    return write_video(path, [fr for fr in frames for _ in range(repeat)], fps)
 
 
 def plot_corner(samples: np.ndarray, names: list, path, truth: dict | None = None, map_theta=None):
@@ -159,7 +196,7 @@ def section(record: dict, out_dir):
     the convergence headline ('Not converged: ...' when a criterion failed)."""
     from pathlib import Path
 
-    from sgdr.pipeline.report_html import Section, esc, image, paragraph, table
+    from sgdr.pipeline.report_html import Section, esc, image, paragraph, table, video
 
     out_dir = Path(out_dir)
     d = record["diagnostics"]
@@ -239,10 +276,18 @@ def section(record: dict, out_dir):
             f"{100 * pred['lowest_height_truth_inside_fit']:.0f}% / {100 * pred['lowest_height_truth_inside_future']:.0f}%."
         )
     body.append(image(out_dir / "predictive.png", "posterior predictive bands", cap))
+    if (out_dir / "ensemble.mp4").exists():
+        body.append(
+            video(
+                out_dir / "ensemble.mp4",
+                "the ensemble over the observed images: projected centres of every posterior draw (blue) and of the "
+                "posterior median (orange); green bar: fit frames, orange bar: future frames",
+            )
+        )
     body.append(
         paragraph(
             f"Files: {out_dir}/posterior.json (every number here), samples.npz (the chains and the kept samples), "
-            "corner.png, traces.png, predictive.png. Not made yet: a video of the ensemble's rollouts."
+            "corner.png, traces.png, predictive.png, ensemble.mp4."
         )
     )
     return Section("Posterior", "".join(body))

@@ -9,7 +9,7 @@ and writes into `<run>/posterior/` (or `posterior.out_dir`):
                    τ, R-hat, ESS, acceptance, priors, likelihood settings, predictive curves, cost
   samples.npz      chains [E, steps, W, D], log_prob [E, steps, W], acceptance [E, W], names,
                    kept [N, D] (post burn-in, thinned), burn_in, thin
-  corner.png, traces.png, predictive.png
+  corner.png, traces.png, predictive.png, ensemble.mp4 (the draws' projected centres over the images)
 
 and adds the 'Posterior' section to `<run>/report/report.html` when that page exists.
 `rollout_fn` is `sgdr.posterior.rollouts.loop_rollout` unless the batched one is passed.
@@ -111,7 +111,9 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     diag = diagnose(chains, problem.names, pc, acceptance)
     kept = kept_samples(chains, diag)
     median = np.array([diag["median"][n] for n in problem.names])
-    pred = pp.predictive(rollout_all, CentreMap(asset, 0), problem, kept, median, pc.n_predictive, seq, seed=cfg.seed)
+    pred, pred_centres, pred_stable = pp.predictive(
+        rollout_all, CentreMap(asset, 0), problem, kept, median, pc.n_predictive, seq, seed=cfg.seed
+    )
     gt = seq.gt_params() or {}
     truth = {k: float(v) for k, v in (gt.get("truth") or {}).items() if k in problem.names} if gt.get("twin") else {}
     if gt.get("twin"):  # a twin's truth keys left out are the asset's own values
@@ -166,6 +168,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     pp.plot_corner(kept, problem.names, out / "corner.png", truth or None, problem.map_theta)
     pp.plot_traces(chains, problem.names, diag["burn_in"], out / "traces.png")
     pp.plot_bands(pred, asset.fps, out / "predictive.png")
+    pp.ensemble_video(seq, pred_centres, pred_stable, out / "ensemble.mp4")
     record["cost"]["seconds"] = float(time.time() - t0)
     (out / "posterior.json").write_text(json.dumps(record, indent=1, allow_nan=False))
     report = run_dir / "report" / "report.html"

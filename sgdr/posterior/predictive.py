@@ -232,6 +232,8 @@ def section(record: dict, out_dir):
             ]
         )
     body.append(table(["parameter", "identified (MAP)", "median", "5%", "95%", "truth", "prior"], rows))
+    for note in record.get("notes") or []:
+        body.append(paragraph("Note: " + note))
     diag_rows = [
         [
             n,

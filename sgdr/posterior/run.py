@@ -116,9 +116,15 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     )
     gt = seq.gt_params() or {}
     truth = {k: float(v) for k, v in (gt.get("truth") or {}).items() if k in problem.names} if gt.get("twin") else {}
-    if gt.get("twin"):  # a twin's truth keys left out are the asset's own values
-        for n, t in zip(problem.names, problem.map_theta):
+    if gt.get("twin") and Path(gt.get("asset", "")).resolve() == asset_dir.resolve():
+        for n, t in zip(problem.names, problem.map_theta):  # a twin of this asset: keys left out are its values
             truth.setdefault(n, float(t))
+    notes = []
+    if "restitution" in problem.names and asset.physics.contact != "coulomb":
+        notes.append(
+            f"restitution has no effect with the asset's physics.contact={asset.physics.contact} (only coulomb "
+            "contact bounces): its posterior is its prior"
+        )
     record = {
         "headline": headline(diag),
         "converged": diag["converged"],
@@ -129,6 +135,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
         "map": {n: float(t) for n, t in zip(problem.names, problem.map_theta)},
         "priors": {n: [float(lo), float(hi)] for n, lo, hi in zip(problem.names, problem.low, problem.high)},
         "truth": truth or None,
+        "notes": notes,
         "truth_inside_5_95": {n: bool(diag["q05"][n] <= t <= diag["q95"][n]) for n, t in truth.items()} or None,
         "likelihood": {
             "kind": "silhouette chamfer",

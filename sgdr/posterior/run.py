@@ -84,6 +84,8 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     rollout = rollout or loop_rollout
     common = (model, asset.values)
     fit_frames = np.arange(1, asset.n_fit, int(pc.frame_stride))
+    if fit_frames.size == 0:
+        raise ValueError(f"{asset_dir}: {asset.n_fit} fit frame(s); the likelihood needs fit frames after frame 0")
     n_fit_rollout = int(fit_frames[-1]) + 1
     rollout_fit = lambda s: rollout(*common, s, ground, n_fit_rollout, 1.0 / asset.fps, asset.n_substeps, asset.physics)  # noqa: E731
     n_all = max(asset.n_frames, seq.n_frames)

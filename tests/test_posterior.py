@@ -72,6 +72,41 @@ def test_verdict_names_each_failed_criterion():
     assert any("never moved" in f and "ensemble 2" in f for f in d["failed"]), d["failed"]
 
 
+def test_silhouette_discrepancy_on_a_synthetic_view():
+    """Points filling a square silhouette score ~0; points shifted right score the outside term
+    (their squared distance to the square) plus the uncovered strip; a cluster in one corner
+    scores 0 outside and a large coverage term."""
+    from scipy.ndimage import distance_transform_edt
+
+    from sgdr.cameras import Camera
+    from sgdr.posterior.likelihood import Observation, discrepancy
+
+    cam = Camera.look_at([0, 0, 5.0], [0, 0, 0], [0, 1, 0], 40.0, 64, 64)
+    # the silhouette: the projection of the square [-0.5, 0.5]^2 at z = 0
+    xy = np.stack(np.meshgrid(np.linspace(-0.5, 0.5, 41), np.linspace(-0.5, 0.5, 41)), -1).reshape(-1, 2)
+    square = np.concatenate([xy, np.zeros((xy.shape[0], 1))], axis=1)
+    uv, _ = cam.project(square)
+    u0, v0 = np.floor(uv.min(0)).astype(int)
+    u1, v1 = np.ceil(uv.max(0)).astype(int)
+    mask = np.zeros((64, 64), bool)
+    mask[v0:v1, u0:u1] = True
+    rr, cc = np.nonzero(mask)
+    obs = Observation(
+        [cam], np.array([1]), distance_transform_edt(~mask)[None, None], [[np.stack([cc + 0.5, rr + 0.5], 1)]]
+    )
+    px_per_unit = (u1 - u0) / 1.0
+    shift = np.array([0.3, 0.0, 0.0])
+    corner = square[(square[:, 0] < -0.4) & (square[:, 1] < -0.4)]
+    d = discrepancy(obs, np.stack([square, square + shift, np.resize(corner, square.shape)])[:, None])
+    assert d.shape == (3, 1, 1)
+    assert d[0, 0, 0] < 1.0  # filled: within the pixel grid's quantisation
+    s_px = 0.3 * px_per_unit
+    # a third of the points lie outside by up to s_px: mean d² ≈ (1/3)(s²/3) = s²/9; the strip of
+    # width s_px left uncovered: mean over the square of d² ≈ (0.3)(s²/3) = s²/10
+    assert d[1, 0, 0] == pytest.approx(s_px**2 / 9 + s_px**2 / 10, rel=0.25)
+    assert d[2, 0, 0] > d[1, 0, 0] and d[2, 0, 0] > 20 * d[0, 0, 0]
+
+
 def test_config_rules_name_the_key():
     from sgdr.checks import ConfigError
 

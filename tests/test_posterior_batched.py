@@ -6,8 +6,8 @@ topology keeps the copies apart; batched Gaussian centres equal `IDWBinding.appl
 import drjit as dr
 import numpy as np
 import pytest
-
 from physics_variants import CONTACT_MODELS, spring_variants
+
 from sgdr.arrays import to_numpy
 from sgdr.backend import ad
 from sgdr.physics import Ground, PhysicsConfig, PhysicsInputError, PhysParams, SimState, build_spring_model, rollout

@@ -108,7 +108,7 @@ def run() -> dict:
     import sgdr.backend as backend
 
     b = backend.init("llvm") if backend._current is None else backend.current()
-    from sgdr.posterior import batched_rollout
+    from sgdr.posterior.batched import batched_rollout
 
     log = lambda msg: print(f"[bench posterior] {msg}", file=sys.stderr, flush=True)  # noqa: E731
     cfg, model, params, ground = _asset()

@@ -11,7 +11,7 @@ from physics_variants import CONTACT_MODELS, spring_variants
 from sgdr.arrays import to_numpy
 from sgdr.backend import ad
 from sgdr.physics import Ground, PhysicsConfig, PhysicsInputError, PhysParams, SimState, build_spring_model, rollout
-from sgdr.posterior import batched_centres, batched_rollout, replicate_model
+from sgdr.posterior.batched import batched_centres, batched_rollout, replicate_model
 from sgdr.skin import IDWBinding
 
 N_A, N_K, N_FRAMES, N_SUB, DT = 48, 8, 5, 40, 1 / 24

@@ -4,7 +4,7 @@ PYTHON ?= $(shell [ -x .venv/bin/python ] && echo .venv/bin/python || echo pytho
 BENCH ?=
 PRESET ?= small
 
-.PHONY: setup test test-all bench data demo reproduce oracle clean help
+.PHONY: setup test test-all bench data demo reproduce oracle posterior clean help
 
 help:
 	@echo "make setup      install libLLVM + sgdr with pinned dependencies (idempotent)"
@@ -14,6 +14,7 @@ help:
 	@echo "make demo       generate + reconstruct + predict + evaluate the torus (small preset)"
 	@echo "make reproduce  the seven-object table (docs/reconstruction-results.md): every object at the small preset, then the table"
 	@echo "make oracle     the spring-mass model fitted to the torus's ground-truth particle tracks (OBJECT=...)"
+	@echo "make posterior  emcee posterior of a finished run's physics (RUN=outputs/torus_small_s0, SEQUENCE= a twin)"
 
 setup:
 	bash scripts/setup.sh
@@ -55,6 +56,15 @@ reproduce:
 OBJECT ?= torus
 oracle:
 	$(PYTHON) experiments/oracle.py preset=$(PRESET) method=$(METHOD) synth.object=$(OBJECT)
+
+# The posterior of a finished run's physics (docs/posterior.md): emcee ensembles over a global
+# log10 k shift, kappa, friction, restitution; writes <run>/posterior/ and adds a section to the
+# run's report.html. Default: the demo's run. SEQUENCE= observes another sequence (e.g. a twin).
+RUN ?= outputs/torus_$(RUN_TAG)_s0
+SEQUENCE ?=
+posterior:
+	$(PYTHON) experiments/posterior.py preset=$(PRESET) method=$(METHOD) posterior.run=$(RUN) \
+		$(if $(SEQUENCE),posterior.sequence=$(SEQUENCE),)
 
 clean:
 	rm -rf outputs multirun .pytest_cache

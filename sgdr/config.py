@@ -17,6 +17,8 @@ from sgdr.physics import config as physics_config
 from sgdr.physics.config import PhysicsConfig
 from sgdr.pipeline import config as recon_config
 from sgdr.pipeline.config import ReconConfig
+from sgdr.posterior import config as posterior_config
+from sgdr.posterior.config import PosteriorConfig
 from sgdr.render import config as render_config
 from sgdr.render.config import RenderConfig
 from sgdr.static_fit import config as static_fit_config
@@ -46,6 +48,7 @@ class Config:
     recon: ReconConfig = field(default_factory=ReconConfig)
     oracle: OracleConfig = field(default_factory=OracleConfig)  # experiments/oracle.py (sgdr.studies.oracle)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    posterior: PosteriorConfig = field(default_factory=PosteriorConfig)  # experiments/posterior.py
 
 
 # ---------------------------------------------------------------------------- checks
@@ -71,6 +74,8 @@ SECTION_CHECKS = {
     "recon.simulate": recon_config.SIMULATE_CHECKS,
     "oracle": oracle_config.CHECKS,
     "tracking": tracking_config.CHECKS,
+    "posterior": posterior_config.CHECKS,
+    "posterior.priors": posterior_config.PRIOR_CHECKS,
 }
 
 
@@ -128,6 +133,7 @@ RULES = (
         if c.synth.hit_frame < c.synth.n_frames
         else f"synth.hit_frame={c.synth.hit_frame} must be < synth.n_frames={c.synth.n_frames}"
     ),
+    lambda c: posterior_config.rule_problem(c.posterior),
 )
 
 

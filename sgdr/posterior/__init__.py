@@ -1,10 +1,13 @@
-"""Posterior over the physical parameters of a finished reconstruction (issue 14). Runs on a
-finished run (`experiments/posterior.py`), not as a pipeline stage.
+"""Posterior over an identified asset's physical parameters (issue 14): how far to trust a
+reconstruction. Runs on a finished reconstruction (`experiments/posterior.py`), not as a
+pipeline stage.
 
-- `batched`: S parameter samples of one asset simulated in one Dr.Jit program (S x N_A
-  anchors sharing the spring topology, per-sample parameters), forward only, with a per-sample
-  stability mask; and the Gaussian centres those anchor tracks imply (`batched_centres`). The
-  sampler evaluates its walkers' likelihoods through it, S at a time.
-- `twin`: twin sequences, an asset simulated by its own model with a known truth and rendered
-  (the truth is in the model class: calibration).
+- `batched`: S parameter samples of one asset in one Dr.Jit program (S x N_A anchors sharing
+  the spring topology, per-sample parameters), forward only, with a per-sample stability mask;
+- `rollouts`: the per-sample rollout contract the sampler calls (batched, or a loop of single
+  rollouts as the reference);
+- `likelihood`: the silhouette likelihood, its noise scale and tempering;
+- `sample`: emcee ensembles and the convergence verdict;
+- `predictive`: posterior predictive bands, plots and the report section;
+- `run`: the whole computation; `twin`: twin sequences for calibration (the truth in the model class).
 """

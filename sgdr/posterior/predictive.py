@@ -1,0 +1,295 @@
+"""The posterior predictive and the posterior's plots and report section.
+
+`predictive` rolls out `posterior.n_predictive` posterior draws and the posterior median over
+every frame (fit and future) and reduces each to two curves over time: the height of the centre
+of mass of the bound Gaussian centres above the ground plane, and the height of the lowest
+centre. The report shows their 5-95% bands with the median prediction, the truth overlaid when
+the observed sequence has ground-truth particles (gt/), and the per-frame Chamfer distance of
+the posterior-median prediction against them. The future frames were not in the likelihood, so
+a truth outside the bands there is a failure of prediction, not of the fit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def heights(centres: np.ndarray, ground_point, ground_normal) -> tuple[np.ndarray, np.ndarray]:
+    """(centre of mass height [..., T], lowest point height [..., T]) of centres [..., T, P, 3]."""
+    n = np.asarray(ground_normal, float) / np.linalg.norm(ground_normal)
+    h = (np.asarray(centres, float) - np.asarray(ground_point, float)) @ n
+    return h.mean(axis=-1), h.min(axis=-1)
+
+
+def predictive(rollout_all, centre_map, problem, samples: np.ndarray, median: np.ndarray, n_draws: int, seq, seed=0):
+    """Bands and truth over every frame. rollout_all(samples) -> (positions [S, T, N_A, 3], stable);
+    samples [N, D] the kept posterior samples; median [D]. Returns (a JSON-ready dict, centres
+    [S, T, P, 3] of the median (index 0) and the draws, stable [S])."""
+    from sgdr.evaluate.geometry import chamfer_distance
+
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(samples.shape[0], size=min(int(n_draws), samples.shape[0]), replace=False)
+    thetas = np.concatenate([median[None], samples[pick]])
+    positions, stable = rollout_all(problem.samples(thetas))
+    centres = centre_map(positions)  # [S, T, P, 3]
+    com, low = heights(centres, seq.ground_point, seq.ground_normal)
+    ok = np.asarray(stable, bool)
+    draws = ok.copy()
+    draws[0] = False  # the median is drawn as its own line
+    out = {
+        "frames": int(centres.shape[1]),
+        "n_fit": int(seq.n_fit),
+        "n_draws": int(draws.sum()),
+        "n_unstable": int((~ok[1:]).sum()),
+        "median_stable": bool(ok[0]),
+    }
+    for name, curve in (("com_height", com), ("lowest_height", low)):
+        if draws.any():
+            q05, q50, q95 = np.percentile(curve[draws], [5, 50, 95], axis=0)
+            out[name] = {"q05": q05.tolist(), "q50": q50.tolist(), "q95": q95.tolist()}
+        out[name + "_median_prediction"] = curve[0].tolist() if ok[0] else None
+    truth_com, truth_low, cd = [], [], []
+    if seq.gt_dir is not None and ok[0]:
+        for f in range(centres.shape[1]):
+            gt = seq.gt_particles(f) if f < seq.n_frames else None
+            if gt is None:
+                break
+            c, lo = heights(gt[None], seq.ground_point, seq.ground_normal)
+            truth_com.append(float(c[0]))
+            truth_low.append(float(lo[0]))
+            cd.append(chamfer_distance(centres[0, f], gt))
+    out["truth_com_height"] = truth_com or None
+    out["truth_lowest_height"] = truth_low or None
+    out["median_cd_per_frame"] = cd or None  # x1e3 scene units², as the run's scores
+    for name in ("com_height", "lowest_height"):
+        truth = out[f"truth_{name}"]
+        if truth is not None and name in out:
+            t = np.asarray(truth)
+            inside = (t >= np.asarray(out[name]["q05"][: t.size]) - 1e-9) & (
+                t <= np.asarray(out[name]["q95"][: t.size]) + 1e-9
+            )
+            out[f"{name}_truth_inside_fit"] = float(inside[: seq.n_fit].mean())
+            out[f"{name}_truth_inside_future"] = float(inside[seq.n_fit :].mean()) if t.size > seq.n_fit else None
+    return out, centres, ok
+
+
+def ensemble_video(seq, centres: np.ndarray, stable: np.ndarray, path, max_views: int = 4, size: int = 192):
+    """A video of the ensemble: for up to `max_views` views, the observed image (over dark grey)
+    with the projected bound centres of every posterior draw (blue, one dot each) and of the
+    posterior median (orange) on top, frame by frame over fit and future; a green bar over fit
+    frames, an orange one over future frames. centres [S, T, P, 3] with the median at index 0."""
+    from sgdr.pipeline.report import playback, tile, write_video
+
+    n_v = min(max_views, len(seq.cameras))
+    views = sorted({int(round(i * len(seq.cameras) / n_v)) % len(seq.cameras) for i in range(n_v)})
+    n_t = min(centres.shape[1], seq.n_frames)
+    frames = []
+    for f in range(n_t):
+        cells = []
+        for v in views:
+            cam = seq.cameras[v]
+            scale = max(1, size // max(cam.width, cam.height))
+            rgba = seq.image(v, f)
+            img = rgba[..., :3] * rgba[..., 3:] + 0.15 * (1 - rgba[..., 3:])
+            img = np.repeat(np.repeat(img, scale, axis=0), scale, axis=1)
+            for s in range(centres.shape[0]):
+                if not stable[s]:
+                    continue
+                uv, z = cam.project(centres[s, f])
+                px = np.floor(uv[z > 0] * scale).astype(int)
+                inside = (px[:, 0] >= 0) & (px[:, 0] < img.shape[1]) & (px[:, 1] >= 0) & (px[:, 1] < img.shape[0])
+                px = px[inside]
+                colour, alpha = (np.array([0.95, 0.55, 0.1]), 0.9) if s == 0 else (np.array([0.25, 0.5, 0.95]), 0.35)
+                img[px[:, 1], px[:, 0]] = (1 - alpha) * img[px[:, 1], px[:, 0]] + alpha * colour
+            bar = np.zeros((max(3, scale), img.shape[1], 3))
+            bar[:] = (0.24, 0.71, 0.29) if f < seq.n_fit else (0.96, 0.65, 0.14)
+            cells.append(np.concatenate([bar, img], axis=0))
+        frames.append(tile(cells, cols=len(cells)))
+    fps, repeat = playback(n_t)
+    return write_video(path, [fr for fr in frames for _ in range(repeat)], fps)
+
+
+def plot_corner(samples: np.ndarray, names: list, path, truth: dict | None = None, map_theta=None):
+    import corner
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    truths = None
+    if truth is not None:
+        truths = [truth.get(n) for n in names]
+    fig = corner.corner(
+        samples, labels=names, quantiles=[0.05, 0.5, 0.95], show_titles=True, truths=truths, truth_color="#d0312d"
+    )
+    if map_theta is not None:
+        corner.overplot_lines(fig, list(map_theta), color="#3c78d8", linestyle="--")
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def plot_traces(chains: np.ndarray, names: list, burn_in: int, path):
+    """One panel per parameter: every walker of every ensemble (one colour per ensemble)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n_ens, _, _, dim = chains.shape
+    fig, axes = plt.subplots(dim, 1, figsize=(8, 1.8 * dim), sharex=True, squeeze=False)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for j, name in enumerate(names):
+        ax = axes[j, 0]
+        for e in range(n_ens):
+            ax.plot(chains[e, :, :, j], color=colours[e % len(colours)], alpha=0.35, lw=0.7)
+        ax.axvline(burn_in, color="k", ls=":", lw=1)
+        ax.set_ylabel(name)
+    axes[-1, 0].set_xlabel("step (dotted: end of burn-in)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def plot_bands(pred: dict, fps: float, path):
+    """Centre-of-mass and lowest-point heights: 5-95% band, median prediction, truth, fit | future."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = np.arange(pred["frames"])
+    panels = ["com_height", "lowest_height"] + (["cd"] if pred.get("median_cd_per_frame") else [])
+    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.4), squeeze=False)
+    titles = {
+        "com_height": "centre of mass height",
+        "lowest_height": "lowest point height",
+        "cd": "CD x1e3 of the posterior-median prediction",
+    }
+    for ax, name in zip(axes[0], panels):
+        if name == "cd":
+            ax.plot(t[: len(pred["median_cd_per_frame"])], pred["median_cd_per_frame"], "o-", color="#3c78d8")
+        else:
+            if name in pred:
+                ax.fill_between(t, pred[name]["q05"], pred[name]["q95"], color="#3c78d8", alpha=0.3, label="5-95%")
+            if pred.get(name + "_median_prediction") is not None:
+                ax.plot(t, pred[name + "_median_prediction"], color="#3c78d8", label="posterior median")
+            if pred.get("truth_" + name) is not None:
+                ax.plot(t[: len(pred["truth_" + name])], pred["truth_" + name], "k--", label="truth")
+            ax.legend(fontsize=7)
+        ax.axvline(pred["n_fit"] - 0.5, color="#f5a623", ls=":", lw=1.5)
+        ax.set_title(titles[name], fontsize=9)
+        ax.set_xlabel(f"frame ({fps:g} fps; dotted: fit | future)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def _g(x, digits=4):
+    return "n/a" if x is None else f"{x:.{digits}g}"
+
+
+def section(record: dict, out_dir):
+    """The report's 'Posterior' section (`sgdr.pipeline.report_html.Section`); its first line is
+    the convergence headline ('Not converged: ...' when a criterion failed)."""
+    from pathlib import Path
+
+    from sgdr.pipeline.report_html import Section, esc, image, paragraph, table, video
+
+    out_dir = Path(out_dir)
+    d = record["diagnostics"]
+    names = d["names"]
+    truth = record.get("truth") or {}
+    status = "good" if d["converged"] else "poor"
+    body = [f'<p id="posterior-verdict" class="{status}"><b>{esc(record["headline"])}</b></p>']
+    body.append(
+        paragraph(
+            f"Observed: {record['sequence']}{' (a twin with a known truth)' if truth else ''}. Likelihood: the "
+            f"silhouettes of {record['likelihood']['n_views']} views x {record['likelihood']['n_frames']} fit frames "
+            f"(frame 0 and the future left out), noise scale σ = {record['likelihood']['sigma_px']:.3g} px from the "
+            f"identified parameters' residual, one observation per view and frame (the tempering), extra temperature "
+            f"{record['likelihood']['temperature']:g}. {d['n_ensembles']} independent ensembles of {d['n_walkers']} "
+            f"walkers x {d['n_steps']} steps started around the run's identified parameters; burn-in {d['burn_in']} "
+            f"steps, thinning {d['thin']}, {d['n_kept']} samples kept; {record['cost']['rollouts']} rollouts in "
+            f"{record['cost']['seconds']:.0f} s."
+        )
+    )
+    rows = []
+    for n in names:
+        lo, hi = d["q05"][n], d["q95"][n]
+        t = truth.get(n)
+        rows.append(
+            [
+                n,
+                _g(record["map"][n]),
+                _g(d["median"][n]),
+                _g(lo),
+                _g(hi),
+                "" if t is None else f"{t:.4g} ({'inside' if lo <= t <= hi else 'OUTSIDE'})",
+                "prior [" + ", ".join(f"{v:g}" for v in record["priors"][n]) + "] uniform",
+            ]
+        )
+    body.append(table(["parameter", "identified (MAP)", "median", "5%", "95%", "truth", "prior"], rows))
+    for note in record.get("notes") or []:
+        body.append(paragraph("Note: " + note))
+    diag_rows = [
+        [
+            n,
+            ", ".join(_g(row[j], 3) for row in d["tau"]),
+            _g(d["rhat"][n]),
+            _g(d["ess_bulk"][n], 3),
+            _g(d["ess_tail"][n], 3),
+        ]
+        for j, n in enumerate(names)
+    ]
+    body.append(table(["parameter", "τ per ensemble (steps)", "R-hat", "ESS bulk", "ESS tail"], diag_rows))
+    body.append(
+        paragraph(
+            "Acceptance fraction per ensemble: "
+            + ", ".join(f"{a:.2f}" for a in d["acceptance"])
+            + f". Criteria: chains >= {record['criteria']['tau_factor']:g} τ, R-hat <= {record['criteria']['rhat_max']:g}"
+            f" and ESS >= {record['criteria']['ess_min']:g} across the ensembles, acceptance in "
+            f"[{record['criteria']['acceptance_min']:g}, {record['criteria']['acceptance_max']:g}]."
+        )
+    )
+    body.append(
+        image(
+            out_dir / "corner.png",
+            "corner plot of the posterior samples",
+            "5/50/95% marked; red: truth, blue dashed: identified",
+        )
+    )
+    body.append(
+        image(
+            out_dir / "traces.png", "trace of every walker", "every walker of every ensemble, one colour per ensemble"
+        )
+    )
+    pred = record["predictive"]
+    cap = (
+        f"{pred['n_draws']} posterior draws over all {pred['frames']} frames ({pred['n_unstable']} unstable left out). "
+        "The future frames were not in the likelihood."
+    )
+    if pred.get("com_height_truth_inside_future") is not None:
+        cap += (
+            f" Truth inside the 5-95% band: centre of mass {100 * pred['com_height_truth_inside_fit']:.0f}% of fit "
+            f"frames, {100 * pred['com_height_truth_inside_future']:.0f}% of future frames; lowest point "
+            f"{100 * pred['lowest_height_truth_inside_fit']:.0f}% / {100 * pred['lowest_height_truth_inside_future']:.0f}%."
+        )
+    body.append(image(out_dir / "predictive.png", "posterior predictive bands", cap))
+    if (out_dir / "ensemble.mp4").exists():
+        body.append(
+            video(
+                out_dir / "ensemble.mp4",
+                "the ensemble over the observed images: projected centres of every posterior draw (blue) and of the "
+                "posterior median (orange); green bar: fit frames, orange bar: future frames",
+            )
+        )
+    body.append(
+        paragraph(
+            f"Files: {out_dir}/posterior.json (every number here), samples.npz (the chains and the kept samples), "
+            "corner.png, traces.png, predictive.png, ensemble.mp4."
+        )
+    )
+    return Section("Posterior", "".join(body))

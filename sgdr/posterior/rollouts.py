@@ -1,0 +1,81 @@
+"""Rollouts of many parameter samples of one asset: the contract the posterior's likelihood calls.
+
+`loop_rollout(model, base_params, samples, ground, n_frames, dt_frame, n_substeps, cfg)` returns
+(positions [S, T, N_A, 3] float64, stable [S] bool), the same contract as the batched
+`sgdr.posterior.batched.batched_rollout`, implemented by one `sgdr.physics.rollout` per sample
+(correct on any backend, slower). `base_params` is the asset's plain parameter values
+(`Asset.values`: log10_k [N_A], kappa, friction, restitution, v0 [3], gravity [3]); `samples` a
+dict of per-sample arrays:
+
+    "log10_k_shift" [S]  added to every anchor's identified log10 k_i (a global stiffness shift)
+    "kappa" [S], "friction" [S], "restitution" [S]   replace the identified values
+    "zeta0" [S] (optional)   replaces physics.zeta0 (damping)
+    "v0" [S, 3] (optional)   replaces the identified initial velocity
+
+A sample whose rollout is unstable even after the retries `cfg` allows (physics.retry_on_nan up
+to physics.max_substeps) has stable False and NaN positions; the likelihood gives it zero
+probability instead of stopping the sampler.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+SAMPLE_KEYS = ("log10_k_shift", "kappa", "friction", "restitution", "zeta0", "v0")
+
+
+def sample_count(samples: dict) -> int:
+    """S, checking that every array in `samples` has it and every key is known."""
+    unknown = sorted(set(samples) - set(SAMPLE_KEYS))
+    if unknown:
+        raise ValueError(f"rollout samples: unknown keys {unknown} (known: {list(SAMPLE_KEYS)})")
+    sizes = {k: np.asarray(v).shape[0] for k, v in samples.items()}
+    if len(set(sizes.values())) != 1:
+        raise ValueError(f"rollout samples: arrays of different lengths {sizes}")
+    return next(iter(sizes.values()))
+
+
+def sample_values(base_params: dict, samples: dict, i: int) -> dict:
+    """The plain parameter values of sample i (`physical_params`'s input)."""
+    values = dict(base_params)
+    values["log10_k"] = np.asarray(base_params["log10_k"], float) + float(
+        np.asarray(samples.get("log10_k_shift", np.zeros(i + 1)))[i]
+    )
+    for key in ("kappa", "friction", "restitution", "zeta0"):
+        if key in samples:
+            values[key] = float(np.asarray(samples[key])[i])
+    if "v0" in samples:
+        values["v0"] = np.asarray(samples["v0"], float)[i].reshape(3)
+    return values
+
+
+def loop_rollout(model, base_params: dict, samples: dict, ground, n_frames: int, dt_frame: float, n_substeps: int, cfg):
+    """(positions [S, T, N_A, 3], stable [S]): one forward rollout from rest per sample."""
+    import drjit as dr
+
+    from sgdr.arrays import array3_to_points
+    from sgdr.physics import SimState, SimulationUnstable, rollout
+    from sgdr.pipeline.predict import physical_params
+
+    s = sample_count(samples)
+    out = np.full((s, int(n_frames), model.n_anchors, 3), np.nan)
+    stable = np.zeros(s, bool)
+    with dr.suspend_grad():
+        for i in range(s):
+            p = physical_params(model, cfg, sample_values(base_params, samples, i))
+            try:
+                states = rollout(
+                    model,
+                    p,
+                    SimState.at_rest(model, p.v0),
+                    ground,
+                    int(n_frames),
+                    float(dt_frame),
+                    cfg,
+                    n_substeps=int(n_substeps),
+                )
+            except SimulationUnstable:
+                continue
+            out[i] = np.stack([array3_to_points(st.x) for st in states])
+            stable[i] = bool(np.all(np.isfinite(out[i])))
+    return out, stable

@@ -1,0 +1,222 @@
+"""The posterior of a finished run, start to end (`experiments/posterior.py` calls `run_posterior`).
+
+Reads `<posterior.run>/asset`, the observed sequence (`posterior.sequence`, default the run's own
+from RUN.json; e.g. a twin), builds the silhouette likelihood with σ from the identified
+parameters' residual, runs the ensembles, diagnoses them, rolls out the posterior predictive,
+and writes into `<run>/posterior/` (or `posterior.out_dir`):
+
+  posterior.json   strict JSON: headline, converged, failed criteria, per-parameter median / 5% / 95%,
+                   τ, R-hat, ESS, acceptance, priors, likelihood settings, predictive curves, cost
+  samples.npz      chains [E, steps, W, D], log_prob [E, steps, W], acceptance [E, W], names,
+                   kept [N, D] (post burn-in, thinned), burn_in, thin
+  corner.png, traces.png, predictive.png, ensemble.mp4 (the draws' projected centres over the images)
+
+and adds the 'Posterior' section to `<run>/report/report.html` when that page exists.
+`rollout_fn` is `sgdr.posterior.rollouts.loop_rollout` unless the batched one is passed.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+def run_sequence(run_dir: Path) -> Path:
+    """The sequence the run reconstructed (RUN.json)."""
+    f = run_dir / "RUN.json"
+    if not f.exists():
+        raise FileNotFoundError(f"{f}: missing; is {run_dir} a finished run folder? (posterior.run)")
+    return Path(json.loads(f.read_text())["sequence"])
+
+
+def _strict(obj):
+    """NaN / inf -> None, numpy -> Python, so json.dumps(allow_nan=False) succeeds."""
+    if isinstance(obj, dict):
+        return {k: _strict(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_strict(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _strict(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
+    """cfg: the composed config (`Config`); returns the record written to posterior.json."""
+    from sgdr.data import load_sequence
+    from sgdr.physics import Ground
+    from sgdr.pipeline.asset import load_asset
+    from sgdr.posterior import predictive as pp
+    from sgdr.posterior.likelihood import CentreMap, SilhouetteLikelihood, discrepancy, observation
+    from sgdr.posterior.rollouts import loop_rollout
+    from sgdr.posterior.sample import LogProbability, Problem, diagnose, headline, kept_samples, run_ensembles
+
+    pc = cfg.posterior
+    t0 = time.time()
+    run_dir = Path(pc.run)
+    asset_dir = run_dir / "asset"
+    if not (asset_dir / "asset.json").exists():
+        raise FileNotFoundError(f"{asset_dir}: no asset; posterior.run must name a finished run folder")
+    seq_dir = Path(pc.sequence) if pc.sequence else run_sequence(run_dir)
+    asset = load_asset(asset_dir)
+    seq = load_sequence(seq_dir)
+    if seq.n_fit != asset.n_fit or len(seq.cameras) != len(asset.cameras):
+        raise ValueError(
+            f"posterior.sequence={seq_dir}: {seq.n_fit} fit frames and {len(seq.cameras)} views, the asset "
+            f"has {asset.n_fit} and {len(asset.cameras)}; observe a sequence with the run's cameras and split"
+        )
+    out = Path(pc.out_dir) if pc.out_dir else run_dir / "posterior"
+    out.mkdir(parents=True, exist_ok=True)
+
+    model, _ = asset.build()
+    ground = Ground(asset.ground_point, asset.ground_normal)
+    rollout = rollout or loop_rollout
+    common = (model, asset.values)
+    fit_frames = np.arange(1, asset.n_fit, int(pc.frame_stride))
+    if fit_frames.size == 0:
+        raise ValueError(f"{asset_dir}: {asset.n_fit} fit frame(s); the likelihood needs fit frames after frame 0")
+    n_fit_rollout = int(fit_frames[-1]) + 1
+    rollout_fit = lambda s: rollout(*common, s, ground, n_fit_rollout, 1.0 / asset.fps, asset.n_substeps, asset.physics)  # noqa: E731
+    n_all = max(asset.n_frames, seq.n_frames)
+    rollout_all = lambda s: rollout(*common, s, ground, n_all, 1.0 / asset.fps, asset.n_substeps, asset.physics)  # noqa: E731
+
+    n_views = len(seq.cameras) if pc.n_views == 0 else min(int(pc.n_views), len(seq.cameras))
+    views = sorted({int(round(i * len(seq.cameras) / n_views)) % len(seq.cameras) for i in range(n_views)})
+    obs = observation(seq, views, fit_frames, pc.n_mask_points, seed=cfg.seed)
+    centre_map = CentreMap(asset, pc.n_points, seed=cfg.seed)
+    problem = Problem.from_config(asset, pc)
+    pos, stable = rollout_fit(problem.samples(problem.map_theta[None]))
+    if not stable[0]:
+        raise RuntimeError(f"{asset_dir}: the identified parameters' rollout is unstable")
+    d_map = discrepancy(obs, centre_map(pos[:, obs.frames]))[0]
+    likelihood = SilhouetteLikelihood.at_map(obs, d_map, pc.sigma_floor_px, pc.temperature)
+    log_prob = LogProbability(problem, rollout_fit, centre_map, likelihood)
+    log.info(
+        "posterior: %d views x %d frames, sigma %.3g px, %s, %d x %d walkers x %d steps",
+        len(views), len(fit_frames), np.sqrt(likelihood.sigma2), problem.names, pc.n_ensembles, pc.n_walkers, pc.n_steps,
+    )  # fmt: skip
+    chains, log_probs, acceptance = run_ensembles(
+        log_prob, problem, pc.n_walkers, pc.n_steps, pc.n_ensembles, pc.init_ball, seed=cfg.seed, progress=progress
+    )
+    sample_seconds = time.time() - t0
+    diag = diagnose(chains, problem.names, pc, acceptance)
+    kept = kept_samples(chains, diag)
+    median = np.array([diag["median"][n] for n in problem.names])
+    pred, pred_centres, pred_stable = pp.predictive(
+        rollout_all, CentreMap(asset, 0), problem, kept, median, pc.n_predictive, seq, seed=cfg.seed
+    )
+    gt = seq.gt_params() or {}
+    truth = {k: float(v) for k, v in (gt.get("truth") or {}).items() if k in problem.names} if gt.get("twin") else {}
+    if gt.get("twin") and Path(gt.get("asset", "")).resolve() == asset_dir.resolve():
+        for n, t in zip(problem.names, problem.map_theta):  # a twin of this asset: keys left out are its values
+            truth.setdefault(n, float(t))
+    notes = []
+    if "restitution" in problem.names and asset.physics.contact != "coulomb":
+        notes.append(
+            f"restitution has no effect with the asset's physics.contact={asset.physics.contact} (only coulomb "
+            "contact bounces): its posterior is its prior"
+        )
+    record = {
+        "headline": headline(diag),
+        "converged": diag["converged"],
+        "failed": diag["failed"],
+        "run": str(run_dir),
+        "sequence": str(seq_dir),
+        "names": problem.names,
+        "map": {n: float(t) for n, t in zip(problem.names, problem.map_theta)},
+        "priors": {n: [float(lo), float(hi)] for n, lo, hi in zip(problem.names, problem.low, problem.high)},
+        "truth": truth or None,
+        "notes": notes,
+        "truth_inside_5_95": {n: bool(diag["q05"][n] <= t <= diag["q95"][n]) for n, t in truth.items()} or None,
+        "likelihood": {
+            "kind": "silhouette chamfer",
+            "views": [seq.cameras[v].name for v in views],
+            "n_views": len(views),
+            "frames": fit_frames.tolist(),
+            "n_frames": len(fit_frames),
+            "n_points": int(centre_map.rest.shape[0]),
+            "n_mask_points": int(pc.n_mask_points),
+            "sigma_px": float(np.sqrt(likelihood.sigma2)),
+            "map_discrepancy_px2": d_map.tolist(),
+            "temperature": float(pc.temperature),
+        },
+        "criteria": {
+            k: float(getattr(pc, k)) for k in ("tau_factor", "rhat_max", "ess_min", "acceptance_min", "acceptance_max")
+        },
+        "diagnostics": diag,
+        "predictive": pred,
+        "cost": {
+            "rollouts": int(log_prob.calls),
+            "unstable_rollouts": int(log_prob.unstable),
+            "sampling_seconds": float(sample_seconds),
+            "seconds": float(time.time() - t0),
+        },
+    }
+    record = _strict(record)
+    np.savez(
+        out / "samples.npz",
+        chains=chains,
+        log_prob=log_probs,
+        acceptance=acceptance,
+        names=np.array(problem.names),
+        kept=kept,
+        burn_in=diag["burn_in"],
+        thin=diag["thin"],
+    )
+    pp.plot_corner(kept, problem.names, out / "corner.png", truth or None, problem.map_theta)
+    pp.plot_traces(chains, problem.names, diag["burn_in"], out / "traces.png")
+    pp.plot_bands(pred, asset.fps, out / "predictive.png")
+    pp.ensemble_video(seq, pred_centres, pred_stable, out / "ensemble.mp4")
+    record["cost"]["seconds"] = float(time.time() - t0)
+    (out / "posterior.json").write_text(json.dumps(record, indent=1, allow_nan=False))
+    report = run_dir / "report" / "report.html"
+    if report.exists():
+        from sgdr.pipeline.report_html import add_section
+
+        add_section(report, pp.section(record, out))
+        record["report"] = str(report)
+    if cfg.tracking.enabled:
+        record["mlflow_run_id"] = log_to_mlflow(run_dir, out, record)
+    return record
+
+
+def log_to_mlflow(run_dir: Path, out: Path, record: dict) -> str | None:
+    """Log the posterior's files (artifact folder `posterior/`) and its diagnostics (metrics
+    `posterior_*`) into the run folder's MLflow run (`mlflow_run.json`); None when the run has
+    none. A tracking failure is logged, never raised: the posterior's files are already written."""
+    state = run_dir / "mlflow_run.json"
+    if not state.exists():
+        log.warning("posterior: %s missing, nothing logged to MLflow", state)
+        return None
+    doc = json.loads(state.read_text())
+    try:
+        from mlflow.tracking import MlflowClient
+
+        client = MlflowClient(tracking_uri=doc["tracking_uri"])
+        run_id = doc["run_id"]
+        client.log_artifacts(run_id, str(out), "posterior")
+        d = record["diagnostics"]
+        metrics = {"posterior_converged": float(record["converged"]), "posterior_seconds": record["cost"]["seconds"]}
+        if d["tau_max"] is not None:
+            metrics["posterior_tau_max"] = d["tau_max"]
+        for n in record["names"]:
+            for key in ("median", "q05", "q95", "rhat", "ess_bulk"):
+                if d[key][n] is not None:
+                    metrics[f"posterior_{key}_{n}"] = d[key][n]
+        for k, v in metrics.items():
+            client.log_metric(run_id, k, float(v))
+        return run_id
+    except Exception as err:  # noqa: BLE001 (any store problem: the files are the record)
+        log.warning("posterior: could not log to MLflow run in %s: %s", state, err)
+        return None

@@ -1,0 +1,267 @@
+"""Sampling the posterior with emcee, and deciding whether the samples can be trusted.
+
+The sampled vector θ is small (`posterior.parameters`, default: log10_k_shift, κ, μ, e): a global
+shift of the identified log10 k field and the scalar physics parameters, under uniform box priors
+(`posterior.priors`). `log_probability` evaluates a whole ensemble at once
+(`emcee.EnsembleSampler(vectorize=True)`): every walker inside the prior becomes one sample of
+the `rollout_fn(samples) -> (positions [S, T, N_A, 3], stable [S])` contract (the batched rollout
+or `sgdr.posterior.rollouts.loop_rollout`), its centres are compared with the silhouettes
+(`sgdr.posterior.likelihood`); outside the prior or unstable is log p = -inf.
+
+Independent ensembles. `run_ensembles` runs `posterior.n_ensembles` (>= 4 asked by the issue)
+ensembles, each with its own seed and its own walkers started in a small ball around the MAP
+(the run's identified parameters, shift 0), clipped into the prior.
+
+Convergence (`diagnose`), every criterion required, its failures listed:
+  1. τ: the integrated autocorrelation time of every parameter in every ensemble
+     (`emcee.autocorr.integrated_time(..., quiet=True)`, averaged over the walkers as emcee
+     does), finite, and every chain at least `posterior.tau_factor` (50) x max τ long; every
+     walker accepted at least one move (a walker that never moved has no τ and is stuck);
+  2. R-hat <= `posterior.rhat_max` and 3. bulk and tail ESS >= `posterior.ess_min`, with ArviZ
+     (rank-normalised split R-hat, Vehtari et al. 2021) ACROSS the ensembles: chain = ensemble.
+     The walkers of one ensemble are not independent chains (the stretch move couples them), so
+     R-hat across walkers is not valid. Each ensemble's draws are its post-burn-in, thinned
+     states, collapsed over the walkers in two orders: for R-hat step-major (the walkers of one
+     step, then the next step), so the split halves compare early with late steps and a drift
+     shows; for ESS walker-major (one walker's steps, then the next walker's), so the
+     autocorrelation ArviZ estimates along the draws is each walker's own over time (step-major
+     would put independent-looking neighbouring walkers side by side and overstate the ESS);
+  4. the mean acceptance fraction of every ensemble in [acceptance_min, acceptance_max]
+     (the stretch move's healthy range is about 0.2-0.5).
+Burn-in = 2 max τ steps and thinning = max(1, min τ / 2) (emcee's guidance), both from the
+measured τ; when τ is unusable (not finite, or burn-in beyond half the chain) half the chain is
+burnt and nothing thinned, and the run is not converged.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class Problem:
+    """The sampled parameters, their priors and the MAP they start from."""
+
+    names: list  # [D]
+    low: np.ndarray  # [D]
+    high: np.ndarray  # [D]
+    map_theta: np.ndarray  # [D]
+
+    @staticmethod
+    def from_config(asset, post_cfg) -> Problem:
+        """The MAP of each parameter from the asset: shift 0, identified κ, μ, e, physics.zeta0.
+        A MAP outside its prior raises ValueError naming posterior.priors.<name>."""
+        identified = {
+            "log10_k_shift": 0.0,
+            "kappa": float(asset.values["kappa"]),
+            "friction": float(asset.values["friction"]),
+            "restitution": float(asset.values["restitution"]),
+            "zeta0": float(asset.values.get("zeta0", asset.physics.zeta0)),
+        }
+        names = list(post_cfg.parameters)
+        low = np.array([float(getattr(post_cfg.priors, n)[0]) for n in names])
+        high = np.array([float(getattr(post_cfg.priors, n)[1]) for n in names])
+        theta = np.array([identified[n] for n in names])
+        for n, lo, hi, t in zip(names, low, high, theta):
+            if not lo <= t <= hi:
+                raise ValueError(
+                    f"posterior.priors.{n}={[lo, hi]} excludes the run's identified value {t:.4g}: widen the prior"
+                )
+        return Problem(names, low, high, theta)
+
+    def inside(self, thetas: np.ndarray) -> np.ndarray:
+        return np.all((thetas >= self.low) & (thetas <= self.high), axis=1)
+
+    def samples(self, thetas: np.ndarray) -> dict:
+        """The rollout contract's per-sample dict from θ [S, D]."""
+        return {n: np.asarray(thetas[:, j], float) for j, n in enumerate(self.names)}
+
+
+class LogProbability:
+    """log p(θ) for a batch of walkers θ [W, D] -> [W] (uniform prior + silhouette likelihood).
+
+    rollout_fn(samples) -> (positions [S, T_fit, N_A, 3], stable [S]); centre_map: anchor
+    positions -> centres; frames: the observation's frame indices into the rollout."""
+
+    def __init__(self, problem: Problem, rollout_fn, centre_map, likelihood):
+        from sgdr.posterior.likelihood import discrepancy
+
+        self.problem, self.rollout_fn, self.centre_map, self.likelihood = problem, rollout_fn, centre_map, likelihood
+        self._discrepancy = discrepancy
+        self.calls = 0  # rollouts run (the cost)
+        self.unstable = 0
+
+    def discrepancies(self, thetas: np.ndarray) -> np.ndarray:
+        """D [S, V, F] of θ [S, D] (NaN for an unstable rollout)."""
+        positions, stable = self.rollout_fn(self.problem.samples(thetas))
+        self.calls += len(thetas)
+        self.unstable += int(np.sum(~np.asarray(stable)))
+        frames = self.likelihood.obs.frames
+        centres = self.centre_map(positions[:, frames])
+        d = self._discrepancy(self.likelihood.obs, np.nan_to_num(centres, nan=0.0))
+        d[~np.asarray(stable, bool)] = np.nan
+        return d
+
+    def __call__(self, thetas: np.ndarray) -> np.ndarray:
+        thetas = np.atleast_2d(np.asarray(thetas, float))
+        out = np.full(thetas.shape[0], -np.inf)
+        ok = self.problem.inside(thetas)
+        if ok.any():
+            out[ok] = self.likelihood.log_likelihood(self.discrepancies(thetas[ok]))
+        return out
+
+
+def initial_walkers(problem: Problem, n_walkers: int, init_ball: float, rng) -> np.ndarray:
+    """[W, D]: MAP + init_ball x prior width x N(0, 1), clipped 1e-3 of the width inside the prior
+    (a MAP on a prior edge, e.g. restitution 0, would otherwise put half the walkers outside)."""
+    width = problem.high - problem.low
+    p0 = problem.map_theta + init_ball * width * rng.standard_normal((n_walkers, len(problem.names)))
+    return np.clip(p0, problem.low + 1e-3 * width, problem.high - 1e-3 * width)
+
+
+def run_ensembles(log_prob, problem: Problem, n_walkers, n_steps, n_ensembles, init_ball, seed=0, progress=False):
+    """(chains [E, steps, W, D], log_probs [E, steps, W], acceptance [E, W]) from `n_ensembles`
+    independent emcee ensembles, seeds seed, seed+1, ..."""
+    import emcee
+
+    chains, lps, acc = [], [], []
+    for e in range(int(n_ensembles)):
+        rng = np.random.default_rng(int(seed) * 1000 + e)
+        p0 = initial_walkers(problem, int(n_walkers), float(init_ball), rng)
+        sampler = emcee.EnsembleSampler(int(n_walkers), len(problem.names), log_prob, vectorize=True)
+        sampler.random_state = np.random.RandomState(int(seed) * 1000 + e).get_state()
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=int(n_steps), desc=f"ensemble {e + 1}/{n_ensembles}", unit="step", leave=False)
+            for _ in sampler.sample(p0, iterations=int(n_steps)):
+                bar.update(1)
+            bar.close()
+        else:
+            sampler.run_mcmc(p0, int(n_steps))
+        chains.append(sampler.get_chain())
+        lps.append(sampler.get_log_prob())
+        acc.append(sampler.acceptance_fraction)
+    return np.stack(chains), np.stack(lps), np.stack(acc)
+
+
+def _finite_or_none(x):
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def diagnose(chains: np.ndarray, names: list, post_cfg, acceptance: np.ndarray) -> dict:
+    """The convergence diagnostics and verdict of chains [E, steps, W, D] (module docstring).
+
+    Returns a JSON-ready dict: tau [E][D], tau_max, burn_in, thin, chain_over_tau, rhat, ess_bulk,
+    ess_tail (per name), acceptance [E], the pooled kept samples' median / q05 / q95 per name,
+    n_kept, converged, failed (one sentence per failed criterion)."""
+    import arviz as az
+    import emcee
+
+    n_ens, n_steps, n_walk, dim = chains.shape
+    tau = np.full((n_ens, dim), np.nan)
+    stuck = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # quiet=True still warns; the criterion below says it
+        for e in range(n_ens):
+            for j in range(dim):
+                # walkers whose chain never changed have no autocorrelation (0/0); emcee's
+                # walker average would turn one of them into a NaN τ
+                moved = np.ptp(chains[e, :, :, j], axis=0) > 0
+                if moved.any():
+                    tau[e, j] = emcee.autocorr.integrated_time(chains[e][:, moved, j : j + 1], quiet=True)[0]
+                if moved.sum() < n_walk:
+                    stuck.append(f"ensemble {e + 1} {names[j]}: {n_walk - int(moved.sum())} of {n_walk}")
+    failed = []
+    tau_ok = bool(np.all(np.isfinite(tau)) and np.all(tau > 0))
+    tau_max = float(np.max(tau)) if tau_ok else float("nan")
+    if tau_ok:
+        burn, thin = int(math.ceil(2 * tau_max)), max(1, int(0.5 * float(np.min(tau))))
+    if not tau_ok or burn > n_steps // 2:
+        burn, thin = n_steps // 2, 1
+    if stuck:
+        failed.append("walkers that never moved (no accepted step): " + ", ".join(stuck))
+    if not tau_ok:
+        failed.append("the autocorrelation time τ could not be estimated for every parameter and ensemble")
+    elif n_steps < post_cfg.tau_factor * tau_max:
+        failed.append(
+            f"chains of {n_steps} steps are {n_steps / tau_max:.1f} τ long (max τ = {tau_max:.1f} steps), "
+            f"need >= {post_cfg.tau_factor:g} τ (posterior.n_steps >= {math.ceil(post_cfg.tau_factor * tau_max)})"
+        )
+    kept = chains[:, burn::thin]  # [E, K, W, D]
+    draws = kept.reshape(n_ens, -1, dim)  # step-major: the walkers of one step, then the next step
+    by_walker = kept.transpose(0, 2, 1, 3).reshape(n_ens, -1, dim)  # walker-major: one walker's steps, then the next
+    step_major = az.from_dict(posterior={n: draws[..., j] for j, n in enumerate(names)})
+    walker_major = az.from_dict(posterior={n: by_walker[..., j] for j, n in enumerate(names)})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rhat = az.rhat(step_major, method="rank")
+        ess_bulk = az.ess(walker_major, method="bulk")
+        ess_tail = az.ess(walker_major, method="tail")
+    rhat = {n: float(rhat[n].values) for n in names}
+    ess_bulk = {n: float(ess_bulk[n].values) for n in names}
+    ess_tail = {n: float(ess_tail[n].values) for n in names}
+    bad_r = [f"{n} {rhat[n]:.3f}" for n in names if not rhat[n] <= post_cfg.rhat_max]
+    if bad_r:
+        failed.append(f"R-hat above {post_cfg.rhat_max:g} across the ensembles: {', '.join(bad_r)}")
+    bad_e = [
+        f"{n} {min(ess_bulk[n], ess_tail[n]):.0f}"
+        for n in names
+        if not min(ess_bulk[n], ess_tail[n]) >= post_cfg.ess_min
+    ]
+    if bad_e:
+        failed.append(f"ESS (bulk or tail) below {post_cfg.ess_min:g}: {', '.join(bad_e)}")
+    acc = np.asarray(acceptance, float).mean(axis=1)  # [E]
+    bad_a = [
+        f"ensemble {e + 1} {a:.2f}"
+        for e, a in enumerate(acc)
+        if not post_cfg.acceptance_min <= a <= post_cfg.acceptance_max
+    ]
+    if bad_a:
+        failed.append(
+            f"acceptance fraction outside [{post_cfg.acceptance_min:g}, {post_cfg.acceptance_max:g}]: {', '.join(bad_a)}"
+        )
+    pooled = draws.reshape(-1, dim)
+    q05, q50, q95 = np.percentile(pooled, [5, 50, 95], axis=0)
+    return {
+        "names": list(names),
+        "n_ensembles": int(n_ens),
+        "n_walkers": int(n_walk),
+        "n_steps": int(n_steps),
+        "tau": [[_finite_or_none(t) for t in row] for row in tau],
+        "tau_max": _finite_or_none(tau_max),
+        "chain_over_tau": _finite_or_none(n_steps / tau_max) if tau_ok else None,
+        "burn_in": int(burn),
+        "thin": int(thin),
+        "n_kept": int(pooled.shape[0]),
+        "rhat": {n: _finite_or_none(v) for n, v in rhat.items()},
+        "ess_bulk": {n: _finite_or_none(v) for n, v in ess_bulk.items()},
+        "ess_tail": {n: _finite_or_none(v) for n, v in ess_tail.items()},
+        "acceptance": [float(a) for a in acc],
+        "median": {n: float(q50[j]) for j, n in enumerate(names)},
+        "q05": {n: float(q05[j]) for j, n in enumerate(names)},
+        "q95": {n: float(q95[j]) for j, n in enumerate(names)},
+        "converged": not failed,
+        "failed": failed,
+    }
+
+
+def kept_samples(chains: np.ndarray, diag: dict) -> np.ndarray:
+    """[N, D] the pooled post-burn-in, thinned samples `diag` summarised."""
+    return chains[:, diag["burn_in"] :: diag["thin"]].reshape(-1, chains.shape[-1])
+
+
+def headline(diag: dict) -> str:
+    """The first line of the report section: 'Not converged: ...' when any criterion failed."""
+    if diag["failed"]:
+        return "Not converged: " + "; ".join(diag["failed"]) + ". The intervals below are not a posterior to rely on."
+    return (
+        f"Converged: {diag['n_ensembles']} ensembles of {diag['n_walkers']} walkers, chains "
+        f"{diag['chain_over_tau']:.0f} τ long, R-hat <= {max(v for v in diag['rhat'].values()):.3f}, "
+        f"ESS >= {min(min(diag['ess_bulk'].values()), min(diag['ess_tail'].values())):.0f}."
+    )

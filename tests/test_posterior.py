@@ -1,0 +1,267 @@
+"""The posterior (issue 14): the silhouette likelihood, the convergence verdict, and a tiny
+posterior end to end on a twin whose truth is in the model class.
+
+The end-to-end test builds a tiny run once (as tests/test_pipeline_e2e.py does), renders a twin
+of its asset with a known stiffness shift, and samples 4 short ensembles over (log10 k shift,
+friction): far too short to converge, so the report must say 'Not converged' first, while the
+diagnostics are all computed and the twin's true shift lies inside the 5-95% interval.
+"""
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from sgdr.config import compose, validate
+from sgdr.posterior.sample import diagnose, headline
+
+TRUE_SHIFT = 0.2
+
+
+def _post_cfg(*overrides):
+    return OmegaConf.to_object(compose(["preset=tiny", *overrides])).posterior
+
+
+def _ar1_chains(n_ens, n_steps, n_walk, dim, rho, seed=0, offsets=None):
+    """Independent AR(1) chains [E, steps, W, D] with stationary N(offset, 1) and lag-1 correlation rho."""
+    rng = np.random.default_rng(seed)
+    x = np.zeros((n_ens, n_steps, n_walk, dim))
+    x[:, 0] = rng.standard_normal((n_ens, n_walk, dim))
+    for t in range(1, n_steps):
+        x[:, t] = rho * x[:, t - 1] + math.sqrt(1 - rho**2) * rng.standard_normal((n_ens, n_walk, dim))
+    if offsets is not None:
+        x += np.asarray(offsets, float)[:, None, None, None]
+    return x
+
+
+def test_verdict_converged_on_well_mixed_chains():
+    cfg = _post_cfg()
+    chains = _ar1_chains(4, 2000, 8, 2, rho=0.5)  # τ = (1 + ρ) / (1 - ρ) = 3
+    d = diagnose(chains, ["a", "b"], cfg, np.full((4, 8), 0.35))
+    assert d["converged"], d["failed"]
+    assert all(2.0 < t < 4.5 for row in d["tau"] for t in row), d["tau"]
+    assert d["burn_in"] == math.ceil(2 * d["tau_max"]) and d["thin"] >= 1
+    assert all(r < 1.01 for r in d["rhat"].values()) and all(e > 400 for e in d["ess_bulk"].values())
+    assert abs(d["median"]["a"]) < 0.1 and d["q05"]["a"] == pytest.approx(-1.645, abs=0.15)
+    assert headline(d).startswith("Converged")
+
+
+def test_verdict_names_each_failed_criterion():
+    cfg = _post_cfg()
+    # ensembles stuck in different places: R-hat across ensembles catches what no single one shows
+    apart = _ar1_chains(4, 2000, 8, 1, rho=0.5, offsets=[0.0, 0.0, 0.0, 3.0])
+    d = diagnose(apart, ["a"], cfg, np.full((4, 8), 0.35))
+    assert not d["converged"] and d["rhat"]["a"] > 1.1
+    assert any("R-hat" in f for f in d["failed"])
+    assert headline(d).startswith("Not converged")
+    # short chains: < 50 τ, and a bad acceptance fraction in one ensemble
+    short = _ar1_chains(4, 60, 8, 1, rho=0.8)
+    acc = np.full((4, 8), 0.35)
+    acc[2] = 0.02
+    d = diagnose(short, ["a"], cfg, acc)
+    assert any("τ long" in f for f in d["failed"]), d["failed"]
+    assert any("acceptance" in f and "ensemble 3" in f for f in d["failed"]), d["failed"]
+    # a walker that never moved
+    stuck = _ar1_chains(4, 2000, 8, 1, rho=0.5)
+    stuck[1, :, 3, 0] = 0.7
+    d = diagnose(stuck, ["a"], cfg, np.full((4, 8), 0.35))
+    assert any("never moved" in f and "ensemble 2" in f for f in d["failed"]), d["failed"]
+
+
+def test_silhouette_discrepancy_on_a_synthetic_view():
+    """Points filling a square silhouette score ~0; points shifted right score the outside term
+    (their squared distance to the square) plus the uncovered strip; a cluster in one corner
+    scores 0 outside and a large coverage term."""
+    from scipy.ndimage import distance_transform_edt
+
+    from sgdr.cameras import Camera
+    from sgdr.posterior.likelihood import Observation, discrepancy
+
+    cam = Camera.look_at([0, 0, 5.0], [0, 0, 0], [0, 1, 0], 40.0, 64, 64)
+    # the silhouette: the projection of the square [-0.5, 0.5]^2 at z = 0
+    xy = np.stack(np.meshgrid(np.linspace(-0.5, 0.5, 41), np.linspace(-0.5, 0.5, 41)), -1).reshape(-1, 2)
+    square = np.concatenate([xy, np.zeros((xy.shape[0], 1))], axis=1)
+    uv, _ = cam.project(square)
+    u0, v0 = np.floor(uv.min(0)).astype(int)
+    u1, v1 = np.ceil(uv.max(0)).astype(int)
+    mask = np.zeros((64, 64), bool)
+    mask[v0:v1, u0:u1] = True
+    rr, cc = np.nonzero(mask)
+    obs = Observation(
+        [cam], np.array([1]), distance_transform_edt(~mask)[None, None], [[np.stack([cc + 0.5, rr + 0.5], 1)]]
+    )
+    px_per_unit = (u1 - u0) / 1.0
+    shift = np.array([0.3, 0.0, 0.0])
+    corner = square[(square[:, 0] < -0.4) & (square[:, 1] < -0.4)]
+    d = discrepancy(obs, np.stack([square, square + shift, np.resize(corner, square.shape)])[:, None])
+    assert d.shape == (3, 1, 1)
+    assert d[0, 0, 0] < 1.0  # filled: within the pixel grid's quantisation
+    s_px = 0.3 * px_per_unit
+    # a third of the points lie outside by up to s_px: mean d² ≈ (1/3)(s²/3) = s²/9; the strip of
+    # width s_px left uncovered: mean over the square of d² ≈ (0.3)(s²/3) = s²/10
+    assert d[1, 0, 0] == pytest.approx(s_px**2 / 9 + s_px**2 / 10, rel=0.25)
+    assert d[2, 0, 0] > d[1, 0, 0] and d[2, 0, 0] > 20 * d[0, 0, 0]
+
+
+def test_config_rules_name_the_key():
+    from sgdr.checks import ConfigError
+
+    with pytest.raises(ConfigError, match=r"posterior\.priors\.friction"):
+        validate(OmegaConf.to_object(compose(["preset=tiny", "posterior.priors.friction=[0.5,0.2]"])))
+    with pytest.raises(ConfigError, match=r"posterior\.n_walkers"):
+        validate(OmegaConf.to_object(compose(["preset=tiny", "posterior.n_walkers=6"])))  # 4 parameters need > 8
+    with pytest.raises(ConfigError, match=r"posterior\.parameters"):
+        validate(OmegaConf.to_object(compose(["preset=tiny", "posterior.parameters=[stiffness]"])))
+
+
+# ---------------------------------------------------------------------------- on a tiny run
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """(overrides, run folder, twin folder): a tiny reconstruction and a twin of its asset."""
+    import sgdr.backend
+    from sgdr.pipeline.run import run_pipeline
+    from sgdr.posterior.twin import twin_sequence
+
+    root = tmp_path_factory.mktemp("posterior")
+    overrides = [
+        "preset=tiny",
+        f"data_dir={root / 'data'}",
+        f"recon.output_dir={root / 'outputs'}",
+        f"tracking.uri=sqlite:///{root / 'mlflow.db'}",
+    ]
+    cfg = OmegaConf.to_object(compose(overrides))
+    sgdr.backend.init(cfg.backend, cfg.threads or None)
+    out = run_pipeline(cfg, progress=False)
+    twin = twin_sequence(out.run_dir / "asset", root / "twin", {"log10_k_shift": TRUE_SHIFT})
+    return overrides, out.run_dir, Path(twin)
+
+
+slow = pytest.mark.slow  # a tiny reconstruction and rollouts
+
+
+@slow
+def test_likelihood_prefers_the_twins_truth(tiny):
+    from sgdr.data import load_sequence
+    from sgdr.physics import Ground
+    from sgdr.pipeline.asset import load_asset
+    from sgdr.posterior.likelihood import CentreMap, SilhouetteLikelihood, discrepancy, observation
+    from sgdr.posterior.rollouts import loop_rollout
+
+    _, run_dir, twin = tiny
+    asset = load_asset(run_dir / "asset")
+    seq = load_sequence(twin)
+    model, _ = asset.build()
+    ground = Ground(asset.ground_point, asset.ground_normal)
+    obs = observation(seq, range(len(seq.cameras)), np.arange(1, asset.n_fit), 64)
+    shifts = np.array([TRUE_SHIFT, TRUE_SHIFT - 1.0, 1.0])
+    pos, stable = loop_rollout(
+        model,
+        asset.values,
+        {"log10_k_shift": shifts},
+        ground,
+        asset.n_fit,
+        1 / asset.fps,
+        asset.n_substeps,
+        asset.physics,
+    )
+    assert stable.all()
+    # the truth is in the model class: the rollout contract + NumPy binding reproduce the twin's centres
+    full = CentreMap(asset, 0)(pos[0])
+    for f in range(asset.n_fit):
+        np.testing.assert_allclose(full[f], seq.gt_particles(f), atol=1e-5)
+    d = discrepancy(obs, CentreMap(asset, 128)(pos[:, obs.frames]))
+    lik = SilhouetteLikelihood.at_map(obs, d[0], 0.5, 1.0)
+    ll = lik.log_likelihood(d)
+    assert ll[0] > ll[1] and ll[0] > ll[2], ll
+    assert ll[0] == pytest.approx(-lik.n_terms / 2, rel=1e-9)  # σ² from this residual: log L = -n/2
+    # an unstable rollout is -inf, not an error
+    assert lik.log_likelihood(np.full((1, *d.shape[1:]), np.nan))[0] == -np.inf
+
+
+@slow
+def test_unstable_sample_is_flagged(tiny):
+    from sgdr.physics import Ground
+    from sgdr.pipeline.asset import load_asset
+    from sgdr.posterior.rollouts import loop_rollout
+
+    _, run_dir, _ = tiny
+    asset = load_asset(run_dir / "asset")
+    model, _ = asset.build()
+    physics = replace(asset.physics, retry_on_nan=False)  # no retries: 10^4 x stiffer is unstable at n_t
+    pos, stable = loop_rollout(
+        model, asset.values, {"log10_k_shift": np.array([0.0, 4.0])}, Ground(asset.ground_point, asset.ground_normal),
+        3, 1 / asset.fps, asset.n_substeps, physics,
+    )  # fmt: skip
+    assert stable.tolist() == [True, False]
+    assert np.isfinite(pos[0]).all() and np.isnan(pos[1]).all()
+
+
+@slow
+def test_tiny_posterior_on_a_twin(tiny):
+    from sgdr.posterior.run import run_posterior
+
+    overrides, run_dir, twin = tiny
+    cfg = OmegaConf.to_object(
+        compose(
+            [
+                *overrides,
+                f"posterior.run={run_dir}",
+                f"posterior.sequence={twin}",
+                "posterior.parameters=[log10_k_shift,friction]",
+                "posterior.n_walkers=6",
+                "posterior.n_steps=24",
+                "posterior.init_ball=0.2",
+                "posterior.n_predictive=4",
+            ]
+        )
+    )
+    validate(cfg)
+    record = run_posterior(cfg)
+    out = run_dir / "posterior"
+
+    def refuse(name):
+        raise ValueError(f"{name} is not JSON")
+
+    on_disk = json.loads((out / "posterior.json").read_text(), parse_constant=refuse)
+    assert on_disk["headline"] == record["headline"]
+    d = on_disk["diagnostics"]
+    names = ["log10_k_shift", "friction"]
+    assert d["names"] == names and d["n_ensembles"] == 4
+    assert all(t is not None and t > 0 for row in d["tau"] for t in row), d["tau"]
+    for n in names:
+        assert np.isfinite(d["rhat"][n]) and d["rhat"][n] > 0.9
+        assert np.isfinite(d["ess_bulk"][n]) and d["ess_bulk"][n] > 0 and np.isfinite(d["ess_tail"][n])
+    assert all(0 < a < 1 for a in d["acceptance"])
+    # 24 steps cannot be 50 τ: the verdict says so first, in the json and in the report
+    assert not on_disk["converged"] and on_disk["headline"].startswith("Not converged")
+    # the twin's truth: the shift given, the friction the asset's own
+    assert on_disk["truth"]["log10_k_shift"] == pytest.approx(TRUE_SHIFT)
+    assert d["q05"]["log10_k_shift"] <= TRUE_SHIFT <= d["q95"]["log10_k_shift"], (d["q05"], d["q95"])
+    assert on_disk["truth_inside_5_95"]["log10_k_shift"] is True
+    # the posterior predictive over fit and future frames, with the twin's truth
+    pred = on_disk["predictive"]
+    assert pred["frames"] == 12 and len(pred["com_height"]["q05"]) == 12
+    assert len(pred["truth_com_height"]) == 12 and len(pred["median_cd_per_frame"]) == 12
+    assert all(np.isfinite(pred["median_cd_per_frame"]))
+    with np.load(out / "samples.npz") as z:
+        assert z["chains"].shape == (4, 24, 6, 2) and z["kept"].shape[1] == 2
+    for name in ("corner.png", "traces.png", "predictive.png", "ensemble.mp4"):
+        assert (out / name).stat().st_size > 1000, name
+    page = (run_dir / "report" / "report.html").read_text()
+    section = page[page.index('<section id="posterior">') :]
+    assert section.index("Not converged") < section.index("<table>")
+    assert "5%" in section and "R-hat" in section and "uniform" in section and "<video" in section
+    # logged into the run's MLflow run
+    from mlflow.tracking import MlflowClient
+
+    state = json.loads((run_dir / "mlflow_run.json").read_text())
+    assert record["mlflow_run_id"] == state["run_id"]
+    run = MlflowClient(tracking_uri=state["tracking_uri"]).get_run(state["run_id"])
+    assert run.data.metrics["posterior_converged"] == 0.0
+    assert "posterior_rhat_log10_k_shift" in run.data.metrics

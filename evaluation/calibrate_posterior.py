@@ -124,7 +124,9 @@ def calibrate(cfg, n_cases: int, out: Path, progress: bool = True) -> dict:
         if progress:
             c = record["cases"][-1]
             inside = sum(c["inside"].values())
-            print(f"case {case}: {inside}/{len(names)} truths inside their 90% interval, {c['seconds']:.0f} s", flush=True)
+            print(
+                f"case {case}: {inside}/{len(names)} truths inside their 90% interval, {c['seconds']:.0f} s", flush=True
+            )
     record["summary"] = summarise(record["cases"], names)
     record["parameters"] = names
     record_file.write_text(json.dumps(record, indent=1))
@@ -148,7 +150,11 @@ def main(argv: list[str]) -> None:
         out = Path(extra.get("out", "results/calibration"))
         record = calibrate(cfg, int(extra.get("cases", 20)), out)
     summary = {n: s["coverage_90"] for n, s in record["summary"].items()}
-    print(json.dumps({"calibration": str(out / "calibration.json"), "cases": len(record["cases"]), "coverage_90": summary}))
+    print(
+        json.dumps(
+            {"calibration": str(out / "calibration.json"), "cases": len(record["cases"]), "coverage_90": summary}
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -34,6 +34,7 @@ class PosteriorConfig:
     out_dir: str = ""  # where posterior.json, samples.npz and plots go ("" = <run>/posterior)
     parameters: list = field(default_factory=lambda: ["log10_k_shift", "kappa", "friction", "restitution"])
     priors: PriorConfig = field(default_factory=PriorConfig)
+    rollout: str = "batched"  # how the walkers' samples are simulated: "batched" (one program) | "loop" (reference)
     # likelihood (sgdr.posterior.likelihood)
     n_views: int = 0  # views used, evenly spaced (0 = all)
     frame_stride: int = 1  # every frame_stride-th fit frame (frame 0, the rest state, is never used)
@@ -63,6 +64,7 @@ CHECKS: dict[str, Check] = {
     "sequence": any_text("an observed sequence folder; empty: the run's own"),
     "out_dir": any_text("the output folder; empty: <run>/posterior"),
     "parameters": list_of(choice(PARAMETERS), min_len=1),
+    "rollout": choice("sgdr.posterior.rollouts:ROLLOUTS"),
     "n_views": at_least(0, "0: all views"),
     "frame_stride": at_least(1),
     "n_points": at_least(0, "0: every centre"),

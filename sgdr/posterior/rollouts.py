@@ -21,7 +21,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from sgdr.registry import Registry
+
 SAMPLE_KEYS = ("log10_k_shift", "kappa", "friction", "restitution", "zeta0", "v0")
+
+# How the sampler's S samples per call are simulated (posterior.rollout): "batched", S x N_A
+# anchors in one Dr.Jit program (`sgdr.posterior.batched`; ~2x faster per sample on 2 CPU cores,
+# docs/benchmarks.md); "loop", one single rollout per sample (the reference; it retries an
+# unstable sample with doubled substeps as physics.retry_on_nan allows, the batched one does not).
+ROLLOUTS = Registry("posterior rollout", "posterior.rollout", ValueError)
 
 
 def sample_count(samples: dict) -> int:
@@ -49,6 +57,7 @@ def sample_values(base_params: dict, samples: dict, i: int) -> dict:
     return values
 
 
+@ROLLOUTS.register("loop")
 def loop_rollout(model, base_params: dict, samples: dict, ground, n_frames: int, dt_frame: float, n_substeps: int, cfg):
     """(positions [S, T, N_A, 3], stable [S]): one forward rollout from rest per sample."""
     import drjit as dr
@@ -79,3 +88,27 @@ def loop_rollout(model, base_params: dict, samples: dict, ground, n_frames: int,
             out[i] = np.stack([array3_to_points(st.x) for st in states])
             stable[i] = bool(np.all(np.isfinite(out[i])))
     return out, stable
+
+
+BATCH = 32  # samples per Dr.Jit program; more gains nothing on 2 cores (docs/benchmarks.md)
+
+
+@ROLLOUTS.register("batched")
+def batched_samples_rollout(
+    model, base_params: dict, samples: dict, ground, n_frames: int, dt_frame: float, n_substeps: int, cfg
+):
+    """(positions [S, T, N_A, 3], stable [S]): the same contract through
+    `sgdr.posterior.batched.batched_rollout`, `BATCH` samples per program."""
+    from sgdr.pipeline.predict import physical_params
+    from sgdr.posterior.batched import batched_rollout
+
+    s = sample_count(samples)
+    params = physical_params(model, cfg, base_params)
+    mapped = {("dlog10_k" if k == "log10_k_shift" else k): np.asarray(v, float) for k, v in samples.items()}
+    positions, stable = [], []
+    for lo in range(0, s, BATCH):
+        chunk = {k: v[lo : lo + BATCH] for k, v in mapped.items()}
+        res = batched_rollout(model, params, chunk, ground, int(n_frames), float(dt_frame), int(n_substeps), cfg)
+        positions.append(res.positions)
+        stable.append(res.stable)
+    return np.concatenate(positions), np.concatenate(stable)

@@ -12,7 +12,8 @@ and writes into `<run>/posterior/` (or `posterior.out_dir`):
   corner.png, traces.png, predictive.png, ensemble.mp4 (the draws' projected centres over the images)
 
 and adds the 'Posterior' section to `<run>/report/report.html` when that page exists.
-`rollout_fn` is `sgdr.posterior.rollouts.loop_rollout` unless the batched one is passed.
+The walkers' samples are simulated by `posterior.rollout` (`sgdr.posterior.rollouts.ROLLOUTS`:
+batched by default) unless a `rollout` function is passed.
 """
 
 from __future__ import annotations
@@ -59,7 +60,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     from sgdr.pipeline.asset import load_asset
     from sgdr.posterior import predictive as pp
     from sgdr.posterior.likelihood import CentreMap, SilhouetteLikelihood, discrepancy, observation
-    from sgdr.posterior.rollouts import loop_rollout
+    from sgdr.posterior.rollouts import ROLLOUTS
     from sgdr.posterior.sample import LogProbability, Problem, diagnose, headline, kept_samples, run_ensembles
 
     pc = cfg.posterior
@@ -81,7 +82,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
 
     model, _ = asset.build()
     ground = Ground(asset.ground_point, asset.ground_normal)
-    rollout = rollout or loop_rollout
+    rollout = rollout or ROLLOUTS.get_named(pc.rollout)
     common = (model, asset.values)
     fit_frames = np.arange(1, asset.n_fit, int(pc.frame_stride))
     if fit_frames.size == 0:

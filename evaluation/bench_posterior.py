@@ -1,0 +1,162 @@
+"""Batched-rollout benchmark: `python -m evaluation.bench posterior` (or `make bench BENCH=posterior`).
+
+What a posterior sampler pays per likelihood: forward rollouts of S parameter samples of one
+asset. At the small preset (N_A = 512 anchors, n_k = 64 springs each, n_t = 100 substeps,
+30 frames at 24 fps; directed springs, official law, project contact: the default physics)
+it measures, for S = 1, 8, 32, on the active Dr.Jit backend (LLVM by default):
+- `sgdr.posterior.batched_rollout` of the S samples in one S x N_A program;
+- the same S samples as S single `sgdr.physics.rollout` calls, one after the other (no
+  gradients, positions read back per frame as the batch does), in the same run;
+and reports rollouts per second of each and the speed-up (single time / batched time). Both
+are timed after a 2-frame warm-up call each (tracing + compilation, reported as
+`*_warmup_2_frames_s`), median over REPS calls, the batched and the single calls interleaved
+(the machine may be shared: a load change then hits both alike). A rollout is N_FRAMES frames,
+frame 0 the rest state, so N_FRAMES - 1 simulated frames. Every call's time is reported
+(`*_s_each`), and the speed-up of the fastest calls (`speedup_of_minima`) next to the one of
+the medians: on a loaded machine the minima are the closer estimate of the unloaded cost. The asset: anchors sampled (farthest points) from points inside the benchmark
+torus (`sgdr.synth.objects.placed_sdf`, no rendering), log10 k = 3 (physics.log10_k_init),
+falling onto a ground 0.02 below it at v0 = (0.2, 0, -1); the samples perturb log10 k, κ, μ,
+ζ0 and v0 around that (all within the stability bound). The largest difference between a
+batched sample and its single rollout is reported too (`max_abs_diff`, scene units; the
+torus is about 0.35 wide).
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import sys
+import time
+
+import numpy as np
+
+N_ANCHORS, N_K, N_SUB, N_FRAMES, FPS = 512, 64, 100, 30, 24.0
+SIZES = (1, 8, 32)
+REPS = 3
+SEED = 0
+
+
+def _asset():
+    import sgdr.backend as backend
+
+    backend.init("llvm") if backend._current is None else None
+    from sgdr.anchors.sampling import sample_anchors
+    from sgdr.physics import Ground, PhysicsConfig, PhysParams, build_spring_model
+    from sgdr.synth.objects import placed_sdf
+
+    rng = np.random.default_rng(SEED)
+    sdf = placed_sdf("torus")
+    points = rng.uniform(0.0, 1.0, (400_000, 3))
+    points = points[sdf(points) < 0]
+    anchors = sample_anchors(points, N_ANCHORS, "fps", 0.01, SEED)
+    cfg = PhysicsConfig(n_substeps=N_SUB)
+    model = build_spring_model(anchors, N_K, cfg)
+    params = PhysParams.init(model, cfg, v0=(0.2, 0.0, -1.0))
+    ground = Ground([0.0, 0.0, float(anchors[:, 2].min()) - 0.02], [0.0, 0.0, 1.0])
+    return cfg, model, params, ground
+
+
+def _samples(n: int, rng: np.random.Generator) -> dict:
+    return {
+        "dlog10_k": rng.uniform(-0.2, 0.2, n),
+        "kappa": rng.uniform(-1.0, 1.0, n),
+        "friction": rng.uniform(0.5, 1.0, n),
+        "zeta0": rng.uniform(0.05, 0.2, n),
+        "v0": np.array([0.2, 0.0, -1.0]) + rng.normal(0.0, 0.2, (n, 3)),
+    }
+
+
+def _singles(cfg, model, params, ground, samples: dict, n_frames: int = N_FRAMES) -> np.ndarray:
+    """The S samples as S single rollouts: positions [S, T, N_A, 3]."""
+    import drjit as dr
+
+    from sgdr.arrays import to_numpy
+    from sgdr.backend import ad
+    from sgdr.physics import SimState, rollout
+
+    t = ad()
+    out = []
+    base_k = to_numpy(params.log10_k, np.float32)
+    with dr.suspend_grad():
+        for s in range(len(samples["kappa"])):
+            p = params.detach()
+            p.log10_k = t.Float(base_k + np.float32(samples["dlog10_k"][s]))
+            for name in ("kappa", "friction", "zeta0"):
+                setattr(p, name, t.Float(float(samples[name][s])))
+            p.v0 = t.Array3f(*map(float, samples["v0"][s]))
+            dr.make_opaque(p)
+            states = rollout(model, p, SimState.at_rest(model, p.v0), ground, n_frames, 1 / FPS, cfg, n_substeps=N_SUB)
+            out.append(np.stack([st.numpy()[0] for st in states]))
+    return np.stack(out)
+
+
+def _timed_pair(batched, singles) -> tuple[list[float], list[float], object, object]:
+    """REPS timed calls of each, interleaved (batched, singles, batched, ...) so that a change
+    in the load of a shared machine hits both alike: (batched s, singles s, last results)."""
+    tb, ts = [], []
+    for _ in range(REPS):
+        t0 = time.perf_counter()
+        batch = batched()
+        tb.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        single = singles()
+        ts.append(time.perf_counter() - t0)
+    return tb, ts, batch, single
+
+
+def run() -> dict:
+    import sgdr.backend as backend
+
+    b = backend.init("llvm") if backend._current is None else backend.current()
+    from sgdr.posterior.batched import batched_rollout
+
+    log = lambda msg: print(f"[bench posterior] {msg}", file=sys.stderr, flush=True)  # noqa: E731
+    cfg, model, params, ground = _asset()
+    rng = np.random.default_rng(SEED)
+    result: dict = {}
+    for S in SIZES:
+        samples = _samples(S, rng)
+        # warm-up: 2 frames trace and compile every kernel of both (the kernels do not depend on S)
+        t0 = time.perf_counter()
+        batched_rollout(model, params, samples, ground, 2, 1 / FPS, N_SUB, cfg)
+        b_first = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        _singles(cfg, model, params, ground, {k: v[:1] for k, v in samples.items()}, n_frames=2)
+        s_first = time.perf_counter() - t0
+        log(f"S = {S}: batched and {S} single rollouts, {REPS} times each, interleaved")
+        b_times, s_times, batch, single = _timed_pair(
+            lambda samples=samples: batched_rollout(model, params, samples, ground, N_FRAMES, 1 / FPS, N_SUB, cfg),
+            lambda samples=samples: _singles(cfg, model, params, ground, samples),
+        )
+        t_b, t_s = statistics.median(b_times), statistics.median(s_times)
+        result[f"S{S}"] = {
+            "batched_rollouts_per_s": S / t_b,
+            "single_rollouts_per_s": S / t_s,
+            "speedup": t_s / t_b,
+            "speedup_of_minima": min(s_times) / min(b_times),
+            "batched_s": t_b,
+            "single_s": t_s,
+            "batched_s_each": b_times,
+            "single_s_each": s_times,
+            "batched_warmup_2_frames_s": b_first,
+            "single_warmup_2_frames_s": s_first,
+            "n_stable": int(batch.stable.sum()),
+            "max_abs_diff": float(np.max(np.abs(batch.positions - single))),
+        }
+        log(f"S = {S}: {result[f'S{S}']}")
+    return {
+        "speedup_S8": result["S8"]["speedup"],
+        "speedup_S32": result["S32"]["speedup"],
+        "batched_rollouts_per_s_S32": result["S32"]["batched_rollouts_per_s"],
+        "single_rollouts_per_s": result["S1"]["single_rollouts_per_s"],
+        **result,
+        "n_anchors": N_ANCHORS,
+        "n_k": N_K,
+        "n_substeps": N_SUB,
+        "n_frames": N_FRAMES,
+        "fps": FPS,
+        "reps": REPS,
+        "backend": b.name,
+        "threads": b.threads,
+        "load_avg_1min": os.getloadavg()[0],
+    }

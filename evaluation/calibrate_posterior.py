@@ -1,0 +1,161 @@
+"""Simulation-based calibration of the posterior on twin sequences (issue 14, §5).
+
+    python -m evaluation.calibrate_posterior posterior.run=outputs/torus_tiny_s0 preset=tiny \
+        +cases=20 +out=results/calibration_tiny
+
+For each case a truth is drawn from the prior (`posterior.priors`, the sampled
+`posterior.parameters`; seeded by the case number), a twin sequence is rendered from the run's
+asset with that truth (`sgdr.posterior.twin`: the truth is in the model class), and the posterior
+is computed on the twin's images with the same asset (`sgdr.posterior.run.run_posterior`).
+Calibrated posteriors put the truth inside their 90% interval (5-95%) in 90% of the cases and
+give SBC ranks (the number of kept posterior draws below the truth, Talts et al. 2018) that are
+uniform. Writes `<out>/calibration.json` (per case: truth, median, 5%, 95%, rank, converged;
+per parameter: coverage and the rank histogram) and `<out>/ranks.png`; the last line printed is
+one JSON object with the coverages. Cases already in `calibration.json` are kept (resumable).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+N_BINS = 5  # rank histogram bins (few cases: coarse bins)
+
+
+def draw_truth(priors, names, case: int) -> dict:
+    """One truth per case, uniform in each sampled parameter's prior box; the middle 80% of the
+    box, so that a truth is never at a hard edge where no interval can cover it from both sides."""
+    rng = np.random.default_rng([2026, case])
+    out = {}
+    for n in names:
+        lo, hi = map(float, getattr(priors, n))
+        out[n] = float(lo + (hi - lo) * rng.uniform(0.1, 0.9))
+    return out
+
+
+def sbc_rank(kept: np.ndarray, truth: float) -> float:
+    """The truth's rank among the kept draws as a fraction in [0, 1] (0: below every draw)."""
+    kept = np.asarray(kept, float)
+    return float(np.mean(kept < truth)) if kept.size else float("nan")
+
+
+def summarise(cases: list[dict], names: list[str]) -> dict:
+    """Coverage of the 5-95% interval and the rank histogram per parameter."""
+    out = {}
+    for n in names:
+        inside = [c["inside"][n] for c in cases if n in c["inside"]]
+        ranks = [c["rank"][n] for c in cases if np.isfinite(c["rank"].get(n, np.nan))]
+        hist, _ = np.histogram(ranks, bins=N_BINS, range=(0.0, 1.0))
+        out[n] = {
+            "cases": len(inside),
+            "coverage_90": float(np.mean(inside)) if inside else None,
+            "rank_histogram": hist.tolist(),
+        }
+    return out
+
+
+def plot_ranks(summary: dict, path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(summary)
+    fig, axes = plt.subplots(1, len(names), figsize=(3.2 * len(names), 2.8), squeeze=False)
+    for ax, n in zip(axes[0], names):
+        h = summary[n]["rank_histogram"]
+        ax.bar(np.arange(len(h)) + 0.5, h, width=0.9)
+        ax.axhline(summary[n]["cases"] / len(h), color="k", ls="--", lw=1)
+        ax.set_xlabel(f"rank of the true {n} (bins)")
+        ax.set_ylabel("cases")
+        cov = summary[n]["coverage_90"]
+        ax.set_title(f"{n}: 90% interval covers {cov:.0%}" if cov is not None else n, fontsize=9)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def calibrate(cfg, n_cases: int, out: Path, progress: bool = True) -> dict:
+    from dataclasses import replace
+
+    from sgdr.posterior.run import run_posterior
+    from sgdr.posterior.twin import twin_sequence
+
+    out.mkdir(parents=True, exist_ok=True)
+    record_file = out / "calibration.json"
+    record = json.loads(record_file.read_text()) if record_file.exists() else {"cases": []}
+    pc = cfg.posterior
+    names = list(pc.parameters)
+    done = {c["case"] for c in record["cases"]}
+    asset_dir = Path(pc.run) / "asset"
+    for case in range(n_cases):
+        if case in done:
+            continue
+        truth = draw_truth(pc.priors, names, case)
+        twin = twin_sequence(asset_dir, out / f"case_{case:03d}" / "twin", truth, cfg.render)
+        case_cfg = replace(
+            cfg,
+            tracking=replace(cfg.tracking, enabled=False),
+            posterior=replace(pc, sequence=str(twin), out_dir=str(out / f"case_{case:03d}" / "posterior")),
+        )
+        res = run_posterior(case_cfg, progress=False)
+        with np.load(out / f"case_{case:03d}" / "posterior" / "samples.npz", allow_pickle=False) as z:
+            kept = z["kept"]
+        diag = res["diagnostics"]
+        record["cases"].append(
+            {
+                "case": case,
+                "truth": truth,
+                "median": {n: diag["median"][n] for n in names},
+                "q05": {n: diag["q05"][n] for n in names},
+                "q95": {n: diag["q95"][n] for n in names},
+                "inside": {n: bool(diag["q05"][n] <= truth[n] <= diag["q95"][n]) for n in names},
+                "rank": {n: sbc_rank(kept[:, i], truth[n]) for i, n in enumerate(names)},
+                "converged": bool(res["converged"]),
+                "seconds": res["cost"]["seconds"],
+            }
+        )
+        record_file.write_text(json.dumps(record, indent=1))
+        if progress:
+            c = record["cases"][-1]
+            inside = sum(c["inside"].values())
+            print(
+                f"case {case}: {inside}/{len(names)} truths inside their 90% interval, {c['seconds']:.0f} s", flush=True
+            )
+    record["summary"] = summarise(record["cases"], names)
+    record["parameters"] = names
+    record_file.write_text(json.dumps(record, indent=1))
+    plot_ranks(record["summary"], out / "ranks.png")
+    return record
+
+
+def main(argv: list[str]) -> None:
+    from omegaconf import OmegaConf
+
+    import sgdr.backend
+    from sgdr.cli import user_errors
+    from sgdr.config import compose, validate
+
+    extra = {a.split("=", 1)[0][1:]: a.split("=", 1)[1] for a in argv if a.startswith("+")}
+    overrides = [a for a in argv if not a.startswith("+")]
+    with user_errors():
+        cfg = OmegaConf.to_object(compose(overrides))
+        validate(cfg)
+        sgdr.backend.init(cfg.backend, cfg.threads or None)
+        out = Path(extra.get("out", "results/calibration"))
+        record = calibrate(cfg, int(extra.get("cases", 20)), out)
+    summary = {n: s["coverage_90"] for n, s in record["summary"].items()}
+    print(
+        json.dumps(
+            {"calibration": str(out / "calibration.json"), "cases": len(record["cases"]), "coverage_90": summary}
+        )
+    )
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -1,0 +1,183 @@
+"""Batched rollouts (sgdr/posterior/batched.py): a batch of S samples equals S single
+`sgdr.physics.rollout` calls with the same parameters, for every springs variant and contact
+model; unstable samples are flagged without disturbing the others; S = 1 works; the replicated
+topology keeps the copies apart; batched Gaussian centres equal `IDWBinding.apply` per frame."""
+
+import drjit as dr
+import numpy as np
+import pytest
+from physics_variants import CONTACT_MODELS, spring_variants
+
+from sgdr.arrays import to_numpy
+from sgdr.backend import ad
+from sgdr.physics import Ground, PhysicsConfig, PhysicsInputError, PhysParams, SimState, build_spring_model, rollout
+from sgdr.posterior.batched import batched_centres, batched_rollout, replicate_model
+from sgdr.skin import IDWBinding
+
+N_A, N_K, N_FRAMES, N_SUB, DT = 48, 8, 5, 40, 1 / 24
+GROUND = Ground([0.0, 0.0, 0.0], [0.0, 0.0, 1.0])
+SIZE = 0.2  # the object's extent: tolerances are relative to it
+
+
+def asset(springs="directed", contact="project", **overrides):
+    """48 anchors in a 0.2-wide box 0.02 above the ground, non-uniform log10 k_i around 2."""
+    rng = np.random.default_rng(3)
+    cfg = PhysicsConfig(springs=springs, contact=contact, n_c=3, retry_on_nan=False, **overrides)
+    model = build_spring_model(rng.uniform(0.0, SIZE, (N_A, 3)) + [0.3, 0.3, 0.02], N_K, cfg)
+    params = PhysParams.init(model, cfg, v0=(0.3, 0.0, -1.0))
+    params.log10_k = ad().Float(rng.uniform(1.7, 2.3, N_A).astype(np.float32))
+    dr.make_opaque(params)
+    return cfg, model, params
+
+
+def samples(n):
+    rng = np.random.default_rng(5)
+    return {
+        "dlog10_k": rng.uniform(-0.3, 0.3, n),
+        "kappa": rng.uniform(-1.0, 1.0, n),
+        "friction": rng.uniform(0.0, 1.0, n),
+        "restitution": rng.uniform(0.0, 0.9, n),
+        "zeta0": rng.uniform(0.0, 0.3, n),
+        "v0": rng.normal(0.0, 1.0, (n, 3)) + [0.0, 0.0, -1.0],
+    }
+
+
+def single(model, base, cfg, values: dict, s: int, n_substeps=N_SUB) -> np.ndarray:
+    """The single rollout of sample s: [T, N_A, 3]."""
+    t = ad()
+    p = base.detach()
+    if "dlog10_k" in values:
+        p.log10_k = t.Float(to_numpy(base.log10_k, np.float32) + np.float32(values["dlog10_k"][s]))
+    for name in ("kappa", "friction", "restitution", "zeta0"):
+        if name in values:
+            setattr(p, name, t.Float(float(values[name][s])))
+    if "v0" in values:
+        p.v0 = t.Array3f(*map(float, values["v0"][s]))
+    dr.make_opaque(p)
+    states = rollout(model, p, SimState.at_rest(model, p.v0), GROUND, N_FRAMES, DT, cfg, n_substeps=n_substeps)
+    assert states.n_substeps == n_substeps
+    return np.stack([s.numpy()[0] for s in states])
+
+
+@pytest.mark.parametrize("contact", CONTACT_MODELS)
+@pytest.mark.parametrize("springs,rule", spring_variants())
+def test_batch_equals_single_rollouts(springs, rule, contact):
+    cfg, model, base = asset(springs, contact, symmetric_stiffness=rule)
+    values = samples(4)
+    out = batched_rollout(model, base, values, GROUND, N_FRAMES, DT, N_SUB, cfg)
+    assert out.positions.shape == (4, N_FRAMES, N_A, 3)
+    assert out.stable.all() and out.cfl_ok.all() and out.finite.all()
+    assert out.n_substeps == N_SUB
+    rest = to_numpy(model.x_rest).T
+    for s in range(4):
+        np.testing.assert_allclose(out.positions[s, 0], rest, atol=1e-7)
+        np.testing.assert_allclose(out.positions[s], single(model, base, cfg, values, s), atol=1e-5 * SIZE, rtol=0)
+    # the samples differ (the comparison would not notice parameters mixed up between copies)
+    # and the object reaches the ground (the contact's μ, e matter)
+    last = out.positions[:, -1]
+    assert np.min([np.abs(last[a] - last[b]).max() for a in range(4) for b in range(a)]) > 1e-3
+    assert out.positions[:, -1, :, 2].min() < 1e-4
+
+
+def test_unstable_sample_is_flagged_and_others_unchanged():
+    cfg, model, base = asset("directed", "project")
+    values = samples(4)
+    values["dlog10_k"][1] = 5.0  # k ~ 1e7 with 40 substeps per frame: far beyond the bound
+    values["kappa"][3] = np.nan  # a NaN parameter is unstable too
+    out = batched_rollout(model, base, values, GROUND, N_FRAMES, DT, N_SUB, cfg)
+    np.testing.assert_array_equal(out.stable, [True, False, True, False])
+    np.testing.assert_array_equal(out.cfl_ok, [True, False, True, False])
+    assert np.isnan(out.positions[[1, 3]]).all()
+    for s in (0, 2):
+        np.testing.assert_allclose(out.positions[s], single(model, base, cfg, values, s), atol=1e-5 * SIZE, rtol=0)
+
+
+def test_blow_up_past_a_lenient_bound_is_flagged_by_finiteness():
+    # cfl_factor 1e3 lets the huge-k sample past the pre-check: it must be caught by NaN/inf
+    cfg, model, base = asset("symmetric", "coulomb", cfl_factor=1e3)
+    values = samples(3)
+    values["dlog10_k"][2] = 6.0
+    out = batched_rollout(model, base, values, GROUND, N_FRAMES, DT, N_SUB, cfg)
+    np.testing.assert_array_equal(out.cfl_ok, [True, True, True])
+    np.testing.assert_array_equal(out.finite, [True, True, False])
+    np.testing.assert_array_equal(out.stable, [True, True, False])
+    for s in (0, 1):
+        np.testing.assert_allclose(out.positions[s], single(model, base, cfg, values, s), atol=1e-5 * SIZE, rtol=0)
+
+
+def test_single_sample_with_base_values():
+    cfg, model, base = asset("symmetric", "project")
+    values = {"friction": np.array([0.4])}  # everything else from the base parameters
+    out = batched_rollout(model, base, values, GROUND, N_FRAMES, DT, None, cfg)
+    assert out.positions.shape == (1, N_FRAMES, N_A, 3) and out.stable.all()
+    assert out.n_substeps == cfg.n_substeps
+    ref = single(model, base, cfg, values, 0, n_substeps=cfg.n_substeps)
+    np.testing.assert_allclose(out.positions[0], ref, atol=1e-5 * SIZE, rtol=0)
+    assert np.abs(ref[-1] - ref[0]).max() > 1e-2  # it moved
+
+
+def test_replicated_topology_keeps_copies_apart():
+    cfg, model, _ = asset()
+    rep = replicate_model(model, 3)
+    assert replicate_model(model, 3) is rep  # cached
+    j = to_numpy(rep.spring_j, np.int64).reshape(3 * N_A, N_K)
+    copy_of_source = np.arange(3 * N_A)[:, None] // N_A
+    np.testing.assert_array_equal(j // N_A, np.broadcast_to(copy_of_source, j.shape))
+    np.testing.assert_array_equal(j % N_A, np.tile(to_numpy(model.spring_j, np.int64).reshape(N_A, N_K), (3, 1)))
+    # the incoming lists: in_spring[in_offset[a]:in_offset[a+1]] are exactly the springs pointing at a
+    in_spring, in_offset = to_numpy(rep.in_spring, np.int64), to_numpy(rep.in_offset, np.int64)
+    flat = j.reshape(-1)
+    for a in (0, N_A - 1, N_A, 2 * N_A + 5, 3 * N_A - 1):
+        got = np.sort(in_spring[in_offset[a] : in_offset[a + 1]])
+        np.testing.assert_array_equal(got, np.flatnonzero(flat == a))
+    assert in_offset[-1] == 3 * N_A * N_K
+
+
+def test_sample_errors_name_the_field():
+    cfg, model, base = asset()
+    with pytest.raises(PhysicsInputError, match="unknown field"):
+        batched_rollout(model, base, {"mu": np.zeros(2)}, GROUND, 2, DT, N_SUB, cfg)
+    with pytest.raises(PhysicsInputError, match=r"samples\['v0'\]"):
+        batched_rollout(model, base, {"kappa": np.zeros(2), "v0": np.zeros((3, 3))}, GROUND, 2, DT, N_SUB, cfg)
+
+
+@pytest.mark.parametrize("form", ["official", "displacement"])
+def test_batched_centres_equal_binding_per_frame(form):
+    cfg, model, base = asset()
+    rng = np.random.default_rng(9)
+    rest_anchors = to_numpy(model.x_rest).T
+    binding = IDWBinding.build(rng.uniform(0.3, 0.5, (30, 3)), rest_anchors, n_b=4, p_b=2.0, form=form)
+    out = batched_rollout(model, base, samples(3), GROUND, 3, DT, N_SUB, cfg)
+    centres = batched_centres(binding, out.positions)
+    assert centres.shape == (3, 3, 30, 3)
+    t = ad()
+    for s in range(3):
+        for f in range(3):
+            x = out.positions[s, f].astype(np.float32)
+            ref = to_numpy(binding.apply(t.Array3f(*x.T))).T
+            np.testing.assert_allclose(centres[s, f], ref, atol=1e-6, rtol=0)
+    assert np.abs(centres[:, -1] - centres[:, 0]).max() > 1e-2
+
+
+def test_the_sampler_contract_is_the_same_batched_or_looped():
+    """posterior.rollout=batched and =loop return the same positions and stability for the
+    sampler's sample dict (log10_k_shift relative to the asset's plain values)."""
+    from sgdr.posterior.rollouts import ROLLOUTS
+
+    cfg, model, params = asset(contact="coulomb")
+    base = {
+        "log10_k": to_numpy(params.log10_k).astype(float),
+        "kappa": 0.0,
+        "friction": 0.5,
+        "restitution": 0.0,
+        "v0": np.array([0.3, 0.0, -1.0]),
+        "gravity": np.array([0.0, 0.0, -9.8]),
+    }
+    s = samples(5)
+    theta = {"log10_k_shift": s["dlog10_k"], "kappa": s["kappa"], "friction": s["friction"]}
+    theta["restitution"] = s["restitution"]
+    theta["log10_k_shift"][2] = 3.0  # far too stiff for N_SUB substeps: unstable in both
+    runs = {name: ROLLOUTS[name](model, base, theta, GROUND, N_FRAMES, DT, N_SUB, cfg) for name in ("batched", "loop")}
+    (pb, sb), (pl, sl) = runs["batched"], runs["loop"]
+    assert list(sb) == list(sl) == [True, True, False, True, True]
+    assert np.nanmax(np.abs(pb[sb] - pl[sl])) < 1e-5 * SIZE

@@ -265,3 +265,23 @@ def test_tiny_posterior_on_a_twin(tiny):
     run = MlflowClient(tracking_uri=state["tracking_uri"]).get_run(state["run_id"])
     assert run.data.metrics["posterior_converged"] == 0.0
     assert "posterior_rhat_log10_k_shift" in run.data.metrics
+
+
+@slow
+def test_batched_rollout_retries_samples_past_the_stability_bound(tiny):
+    """The batched program does not retry; a sample stiffer than the asset's n_t allows is re-run
+    by the loop (doubled substeps), so a stiff sample is not silently cut off the posterior."""
+    from sgdr.physics import Ground
+    from sgdr.pipeline.asset import load_asset
+    from sgdr.posterior.rollouts import ROLLOUTS
+
+    _, run_dir, _ = tiny
+    asset = load_asset(run_dir / "asset")
+    model, _ = asset.build()
+    ground = Ground(asset.ground_point, asset.ground_normal)
+    args = (ground, 3, 1 / asset.fps, asset.n_substeps, asset.physics)
+    samples = {"log10_k_shift": np.array([0.0, 1.5])}  # 10^1.5 x stiffer: beyond n_t's bound, within max_substeps
+    pos_b, stable_b = ROLLOUTS["batched"](model, asset.values, samples, *args)
+    pos_l, stable_l = ROLLOUTS["loop"](model, asset.values, samples, *args)
+    assert stable_l.tolist() == [True, True] and stable_b.tolist() == [True, True]
+    np.testing.assert_allclose(pos_b, pos_l, atol=1e-4)

@@ -98,7 +98,14 @@ def batched_samples_rollout(
     model, base_params: dict, samples: dict, ground, n_frames: int, dt_frame: float, n_substeps: int, cfg
 ):
     """(positions [S, T, N_A, 3], stable [S]): the same contract through
-    `sgdr.posterior.batched.batched_rollout`, `BATCH` samples per program."""
+    `sgdr.posterior.batched.batched_rollout`, `BATCH` samples per program.
+
+    The batched program runs every sample at the asset's n_t and does not retry: a sample stiffer
+    than n_t's stability bound comes back unstable. On the small torus the identified asset sits
+    at that bound (every sample with a log10 k shift above ~ +0.07 was unstable), which would
+    cut the posterior off at the MAP's stiffness. Those samples are therefore re-run by
+    `loop_rollout`, which doubles the substeps as physics.retry_on_nan allows, so both rollouts
+    give the same answer for every sample (a sample unstable there too stays unstable)."""
     from sgdr.pipeline.predict import physical_params
     from sgdr.posterior.batched import batched_rollout
 
@@ -111,4 +118,10 @@ def batched_samples_rollout(
         res = batched_rollout(model, params, chunk, ground, int(n_frames), float(dt_frame), int(n_substeps), cfg)
         positions.append(res.positions)
         stable.append(res.stable)
-    return np.concatenate(positions), np.concatenate(stable)
+    positions, stable = np.concatenate(positions), np.concatenate(stable)
+    redo = np.flatnonzero(~stable)
+    if redo.size and cfg.retry_on_nan:
+        sub = {k: np.asarray(v)[redo] for k, v in samples.items()}
+        pos_r, stable_r = loop_rollout(model, base_params, sub, ground, n_frames, dt_frame, n_substeps, cfg)
+        positions[redo], stable[redo] = pos_r, stable_r
+    return positions, stable

@@ -30,6 +30,7 @@ Stage outputs (all under the run folder):
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import re
@@ -455,9 +456,6 @@ def interrupted_message(run_dir: Path, stage: str, done: list[str]) -> str:
     saved = f"stages {', '.join(done)} are complete" if done else "no stage was complete"
     ckpt = Checkpoint(run_dir / stage / CHECKPOINT_DIR, "")
     if ckpt.path.is_file():
-        try:
-            with np.load(ckpt.path, allow_pickle=False) as z:
-                saved += f", stage {stage} is saved up to step {int(z['__step__'])}"
-        except Exception:  # noqa: BLE001 - an unreadable checkpoint is simply not reported
-            pass
+        with contextlib.suppress(Exception), np.load(ckpt.path, allow_pickle=False) as z:
+            saved += f", stage {stage} is saved up to step {int(z['__step__'])}"  # unreadable: not reported
     return f"interrupted during stage {stage}: {saved} (in {run_dir}); run the same command again to resume from there"

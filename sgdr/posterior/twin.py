@@ -27,22 +27,17 @@ from pathlib import Path
 
 import numpy as np
 
-TRUTH_KEYS = ("log10_k_shift", "kappa", "friction", "restitution", "zeta0", "v0")
-
 
 def twin_values(asset, truth: dict) -> dict:
-    """The asset's parameter values with `truth` applied (see the module docstring)."""
-    unknown = sorted(set(truth) - set(TRUTH_KEYS))
+    """The asset's parameter values with `truth` applied (see the module docstring): the same
+    mapping the sampler uses for its samples (`sgdr.posterior.rollouts.sample_values`)."""
+    from sgdr.posterior.rollouts import SAMPLE_KEYS, sample_values
+
+    unknown = sorted(set(truth) - set(SAMPLE_KEYS))
     if unknown:
-        raise ValueError(f"twin truth: unknown keys {unknown}; known: {list(TRUTH_KEYS)}")
-    values = dict(asset.values)
-    values["log10_k"] = np.asarray(values["log10_k"], float) + float(truth.get("log10_k_shift", 0.0))
-    for key in ("kappa", "friction", "restitution", "zeta0"):
-        if key in truth:
-            values[key] = float(truth[key])
-    if "v0" in truth:
-        values["v0"] = np.asarray(truth["v0"], float).reshape(3)
-    if "restitution" in truth and not 0.0 <= values["restitution"] <= 1.0:
+        raise ValueError(f"twin truth: unknown keys {unknown}; known: {list(SAMPLE_KEYS)}")
+    values = sample_values(asset.values, {k: np.asarray([v], float) for k, v in truth.items()}, 0)
+    if not 0.0 <= float(values["restitution"]) <= 1.0:
         raise ValueError(f"twin truth: restitution {values['restitution']} outside [0, 1]")
     return values
 

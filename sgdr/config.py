@@ -40,6 +40,9 @@ class Config:
     seed: int = 0  # seeds sampling, initialisation and camera choice
     data_dir: str = "data"  # where generated sequences live (relative to the repo root)
     sequence: str = ""  # path of the sequence to reconstruct ("" = data_dir/<synth.object>)
+    # the scene of a foreign-layout sequence (sgdr_scene.json form, official Spring-Gaus .yaml or PAC-NeRF .py
+    # config); "" = the folder's sgdr_scene.json (a real capture: the one *.yaml in its folder)
+    scene_file: str = ""
     physics: PhysicsConfig = field(default_factory=PhysicsConfig)
     anchors: AnchorConfig = field(default_factory=AnchorConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
@@ -62,6 +65,7 @@ CHECKS = {
     "seed": non_negative(),
     "data_dir": non_empty_text(),
     "sequence": any_text("a sequence folder; empty: <data_dir>/<synth.object>"),
+    "scene_file": any_text("a scene file for a foreign layout; empty: the folder's own"),
 }
 SECTION_CHECKS = {
     "physics": physics_config.CHECKS,

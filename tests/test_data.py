@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from sgdr.data import SequenceError, load_sequence
-from sgdr.data.foreign import SCENE_DEFAULTS
 
 DATA = Path(__file__).parent / "data"
 LAYOUTS = {"sgdr": "sgdr_seq", "spring_gaus": "spring_gaus", "pac_nerf": "pac_nerf"}
@@ -41,7 +40,9 @@ def test_every_layout_reads_the_same_cameras_images_and_scene(layout):
         for f in range(3):
             im = seq.image(v, f)
             assert im.shape == (12, 16, 4) and im.dtype == np.float32
-            np.testing.assert_array_equal(im, ref.image(v, f))
+            # one convention everywhere: RGB on black (premultiplied) + alpha; the foreign PNGs hold
+            # straight alpha, so 8-bit rounding of rgb / alpha moves a channel by at most one level
+            np.testing.assert_allclose(im, ref.image(v, f), atol=1.01 / 255)
 
 
 def assert_json_close(a, b, path="$", rtol=1e-9, atol=1e-12):
@@ -103,13 +104,27 @@ def test_sgdr_round_trip_keeps_ground_truth_and_cameras_project_the_ball():
     assert seq.gt_effects() == {}
 
 
-def test_foreign_layout_without_sidecar_uses_reader_arguments(tmp_path):
+def test_foreign_layout_without_scene_is_refused_naming_what_is_missing(tmp_path):
     root = fixture_copy(tmp_path, "spring_gaus")
     (root / "sgdr_scene.json").unlink()
-    seq = load_sequence(root, hit_frame=1, gravity=[0, 0, -3.0])
-    assert seq.hit_frame == 1 and seq.n_fit == 3  # n_fit default clipped to the frame count
+    raises_naming(
+        ["fps", "hit_frame", "ground", "gravity", "scene_file", "sgdr_scene.json"], lambda: load_sequence(root)
+    )
+    # reader arguments give it; n_fit defaults to every frame
+    seq = load_sequence(
+        root, fps=30.0, hit_frame=1, gravity=[0, 0, -3.0], ground={"point": [0, 0, 0], "normal": [0, 0, 1]}
+    )
+    assert seq.hit_frame == 1 and seq.n_fit == 3 and seq.fps == 30.0
     np.testing.assert_allclose(seq.gravity, [0, 0, -3.0])
-    np.testing.assert_allclose(seq.ground_normal, SCENE_DEFAULTS["ground"]["normal"])
+    # PAC-NeRF's time stamps give the frame rate, nothing else
+    pac = fixture_copy(tmp_path, "pac_nerf")
+    (pac / "sgdr_scene.json").unlink()
+    raises_naming(["hit_frame", "ground", "gravity"], lambda: load_sequence(pac))
+
+
+def test_sgdr_layout_refuses_scene_values(tmp_path):
+    root = fixture_copy(tmp_path, "sgdr")
+    raises_naming(["sequence.json"], lambda: load_sequence(root, hit_frame=1))
 
 
 # ---------------------------------------------------------------------------- error messages
@@ -184,8 +199,15 @@ def test_spring_gaus_errors_name_file_and_field(tmp_path):
     shutil.copy(root / "cam_a" / "002.png", root / "cam_b" / "002.png")
     import imageio.v3 as iio
 
-    iio.imwrite(root / "cam_a" / "001.png", np.zeros((12, 16, 3), np.uint8))
-    raises_naming(["cam_a/001.png", "3 channels"], lambda: load_sequence(root))
+    # an RGB frame is opaque, as the official loader's convert("RGBA") reads it
+    iio.imwrite(root / "cam_a" / "001.png", np.full((12, 16, 3), 128, np.uint8))
+    im = load_sequence(root).image(0, 1)
+    np.testing.assert_allclose(im[..., 3], 1.0)
+    np.testing.assert_allclose(im[..., :3], 128 / 255, atol=1e-6)
+    # a frame missing in every camera is a gap, never a shorter sequence
+    for cam in ("cam_a", "cam_b"):
+        (root / cam / "001.png").unlink()
+    raises_naming(["001.png", "missing", "frames must run from 0"], lambda: load_sequence(root))
 
     shutil.rmtree(root / "cam_a")
     raises_naming(["cam_a", "missing"], lambda: load_sequence(root))

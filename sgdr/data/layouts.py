@@ -4,6 +4,7 @@ Layouts (a `sgdr.registry.Registry`, name -> (marker file, reader)):
 - `sgdr`: `sequence.json` (`sgdr.data.sequence`, sgdr's own format)
 - `spring_gaus`: `camera.json` (`sgdr.data.foreign`)
 - `pac_nerf`: `all_data.json` (`sgdr.data.foreign`)
+- `spring_gaus_real`: `dynamic/cameras_calib.json` (`sgdr.data.real_capture`)
 
 This module sits above `sequence` and `foreign` (foreign builds on sequence's helpers; neither
 imports this one), so the two readers do not import each other.
@@ -13,13 +14,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sgdr.data import foreign
+from sgdr.data import foreign, real_capture
 from sgdr.data.sequence import SEQUENCE_FILE, Sequence, SequenceError, read_sgdr
 from sgdr.registry import Registry
 
 
-def _read_sgdr(root: Path, **scene_defaults) -> Sequence:
-    return read_sgdr(root)  # sgdr's layout stores its scene: the defaults do not apply
+def _read_sgdr(root: Path, scene_file=None, **scene) -> Sequence:
+    if scene_file or any(v is not None for v in scene.values()):
+        raise SequenceError(
+            f"{root}: sgdr's layout records its scene in sequence.json; scene_file and scene values apply only to "
+            "the foreign layouts (edit sequence.json instead)"
+        )
+    return read_sgdr(root)
 
 
 LAYOUTS = Registry(
@@ -30,9 +36,15 @@ LAYOUTS = Registry(
         "sgdr": (SEQUENCE_FILE, _read_sgdr),
         "spring_gaus": (foreign.SPRING_GAUS_FILE, foreign.read_spring_gaus),
         "pac_nerf": (foreign.PAC_NERF_FILE, foreign.read_pac_nerf),
+        "spring_gaus_real": (real_capture.MARKER, real_capture.read_real_capture),
     },
 )
-_LAYOUT_TITLES = {"sgdr": "sgdr", "spring_gaus": "Spring-Gaus", "pac_nerf": "PAC-NeRF"}
+_LAYOUT_TITLES = {
+    "sgdr": "sgdr",
+    "spring_gaus": "Spring-Gaus",
+    "pac_nerf": "PAC-NeRF",
+    "spring_gaus_real": "Spring-Gaus real capture",
+}
 
 
 def detect_layout(root: Path) -> str:
@@ -44,15 +56,17 @@ def detect_layout(root: Path) -> str:
     raise SequenceError(f"{root}: no sequence found: expected {expected}")
 
 
-def load_sequence(path, **scene_defaults) -> Sequence:
-    """Read a sequence folder, auto-detecting the sgdr / Spring-Gaus / PAC-NeRF layout.
+def load_sequence(path, scene_file=None, **scene) -> Sequence:
+    """Read a sequence folder, auto-detecting the sgdr / Spring-Gaus / PAC-NeRF / real-capture layout.
 
-    scene_defaults: for the foreign layouts, which lack scene data, values for fps, n_fit,
-      hit_frame, ground (dict with point and normal) and gravity; a `sgdr_scene.json` in the
-      folder takes precedence over them (see `sgdr.data.foreign`). Ignored for sgdr's layout.
+    scene_file: for the foreign layouts, which do not record their scene, a file giving it: sgdr's
+      `sgdr_scene.json` form, the official Spring-Gaus YAML or PAC-NeRF Python config (default:
+      the folder's `sgdr_scene.json`; see `sgdr.data.foreign`).
+    scene: values that override it (fps, n_fit, hit_frame, ground {point, normal}, gravity; None
+      ignored). Both are refused for sgdr's own layout, which records its scene.
     """
     root = Path(path)
     if not root.is_dir():
         raise SequenceError(f"{root}: sequence folder does not exist")
     _, reader = LAYOUTS.get_named(detect_layout(root))
-    return reader(root, **scene_defaults)
+    return reader(root, scene_file=scene_file or None, **scene)

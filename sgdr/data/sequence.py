@@ -11,11 +11,22 @@ gt/params.json             optional: the generator's true parameters (material, 
 gt/effects.json            optional: the injected effects and their magnitudes
 ```
 
-`load_sequence(path)` (`sgdr.data.layouts`) reads this layout and, through `sgdr.data.foreign`,
-the Spring-Gaus (`camera.json`) and PAC-NeRF (`all_data.json`) layouts. Every missing file, missing field,
-wrong shape, inconsistent image size or frame count raises `SequenceError` naming the file and
-the field; nothing is skipped silently. Image headers are checked at load time (size and
-channel count), pixels are read on demand by `Sequence.image`.
+`load_sequence(path)` (`sgdr.data.layouts`) reads this layout and, through `sgdr.data.foreign`
+and `sgdr.data.real_capture`, the Spring-Gaus (`camera.json`, real captures) and PAC-NeRF
+(`all_data.json`) layouts. Every missing file, missing field, wrong shape, inconsistent image
+size or frame count raises `SequenceError` naming the file and the field; nothing is skipped
+silently. Image headers are checked at load time (size and channel count), pixels are read on
+demand by `Sequence.image`.
+
+One RGBA convention everywhere: `Sequence.image` returns RGB composited on black (premultiplied
+by alpha) and alpha = the object's mask, whatever the layout stores. sgdr's own PNGs already hold
+RGB on black (`alpha_mode="premultiplied"`); PNGs of the foreign layouts hold straight alpha, as
+PNG defines it and as the official loaders read it (they composite rgb x alpha on black):
+`alpha_mode="straight"`. Where the mask is not the image's alpha, it comes from a separate mask
+file (`mask_paths`: Spring-Gaus real captures) or from matting the image against a clean
+background plate of its view (`backgrounds`: PAC-NeRF's `r_<view>_-1.png`; `sgdr.data.matte`).
+An image without alpha and without either source is opaque (alpha 1), as the official
+Spring-Gaus loader reads a 3-channel PNG.
 """
 
 from __future__ import annotations
@@ -61,8 +72,15 @@ class Sequence:
     gravity: np.ndarray  # [3] gravitational acceleration, scene units / s²
     hit_frame: int  # first frame in which the object touches the ground
     image_paths: list[list[Path]] = field(repr=False, default_factory=list)  # [view][frame]
-    layout: str = "sgdr"  # "sgdr" | "spring_gaus" | "pac_nerf"
+    layout: str = "sgdr"  # "sgdr" | "spring_gaus" | "pac_nerf" | "spring_gaus_real"
     gt_dir: Path | None = None  # ground-truth folder (sgdr layout with gt/), else None
+    alpha_mode: str = "premultiplied"  # how the files store RGB: "premultiplied" (on black) | "straight"
+    mask_paths: list[list[Path]] | None = field(repr=False, default=None)  # [view][frame] mask files, else None
+    backgrounds: list[Path | None] | None = field(repr=False, default=None)  # [view] clean plates to matte against
+    mask_only: bool = False  # the targets are the masks themselves (RGB = mask; Spring-Gaus IMG_IS_MASK)
+    resize: bool = False  # an image of another size than its camera is resized to it (the mask's size)
+    matte_threshold: float = 0.1  # matting against `backgrounds`: colour distance at alpha 0.5 (sgdr.data.matte)
+    extras: dict = field(repr=False, default_factory=dict)  # layout-specific data (e.g. a real capture's static scan)
 
     @property
     def n_views(self) -> int:
@@ -80,7 +98,32 @@ class Sequence:
         if not 0 <= frame < self.n_frames:
             raise IndexError(f"{self.root}: frame {frame} outside 0..{self.n_frames - 1}")
         cam = self.cameras[view_index]
-        return read_rgba(self.image_paths[view_index][frame], cam.width, cam.height)
+        path = self.image_paths[view_index][frame]
+        im = read_pixels(path, *((None, None) if self.resize else (cam.width, cam.height)))
+        if im.shape[:2] != (cam.height, cam.width):
+            import cv2
+
+            im = cv2.resize(im, (cam.width, cam.height), interpolation=cv2.INTER_AREA).reshape(
+                cam.height, cam.width, im.shape[2]
+            )
+        rgb, alpha = split_channels(im)
+        straight = self.alpha_mode == "straight"
+        if self.mask_paths is not None:
+            alpha, straight = read_mask(self.mask_paths[view_index][frame], cam.width, cam.height), True
+        elif self.backgrounds is not None and self.backgrounds[view_index] is not None:
+            from sgdr.data.matte import matte
+
+            plate, _ = split_channels(read_pixels(self.backgrounds[view_index], cam.width, cam.height))
+            alpha = matte(rgb, plate, self.matte_threshold)
+            # the compositing equation I = F + (1 - a) B solved for the premultiplied foreground F
+            rgb = np.clip(rgb - (1.0 - alpha[..., None]) * plate, 0.0, alpha[..., None])
+        if alpha is None:
+            alpha = np.ones(rgb.shape[:2], np.float32)
+        if self.mask_only:
+            rgb = np.repeat(alpha[..., None], 3, axis=-1)
+        elif straight:
+            rgb = rgb * alpha[..., None]
+        return np.concatenate([rgb, alpha[..., None]], axis=-1).astype(np.float32)
 
     def check_images(self, progress: bool = False) -> None:
         """Decode every image of every view and frame once (a `SequenceError` naming the first
@@ -166,15 +209,19 @@ def png_header(path: Path) -> tuple[int, int, int]:
         return im.width, im.height, channels
 
 
-def check_image(path: Path, width: int, height: int, view_field: str):
+def check_image(path: Path, width: int, height: int, view_field: str, channels=(4,)) -> int:
+    """Check an image's size and channel count from its header; returns the channel count."""
     w, h, c = png_header(path)
     if (w, h) != (width, height):
         fail(path, view_field, f"image is {w}x{h}, the camera says {width}x{height}")
-    if c != 4:
-        fail(path, view_field, f"image has {c} channels, expected RGBA (alpha = mask)")
+    if c not in channels:
+        want = "RGBA (alpha = mask)" if tuple(channels) == (4,) else f"{' or '.join(map(str, channels))} channels"
+        fail(path, view_field, f"image has {c} channels, expected {want}")
+    return c
 
 
-def read_rgba(path: Path, width: int, height: int) -> np.ndarray:
+def read_pixels(path: Path, width: int | None = None, height: int | None = None) -> np.ndarray:
+    """[H, W, C] float32 in [0, 1] of an 8- or 16-bit image file (C = 1..4), size checked."""
     import imageio.v3 as iio
 
     if not Path(path).is_file():
@@ -183,12 +230,44 @@ def read_rgba(path: Path, width: int, height: int) -> np.ndarray:
         im = iio.imread(path)
     except Exception as exc:  # noqa: BLE001 - any decoder error: name the file
         fail(path, "<image>", f"cannot be decoded as an image ({type(exc).__name__}: {exc})")
-    if im.ndim != 3 or im.shape[2] != 4:
-        fail(path, "<image>", f"expected RGBA [H, W, 4], got shape {list(im.shape)}")
-    if im.shape[:2] != (height, width):
+    if im.ndim == 2:
+        im = im[..., None]
+    if im.ndim != 3 or not 1 <= im.shape[2] <= 4:
+        fail(path, "<image>", f"expected [H, W, 1..4] pixels, got shape {list(im.shape)}")
+    if width is not None and im.shape[:2] != (height, width):
         fail(path, "<image>", f"image is {im.shape[1]}x{im.shape[0]}, expected {width}x{height}")
     scale = 65535.0 if im.dtype == np.uint16 else 255.0
     return im.astype(np.float32) / np.float32(scale)
+
+
+def split_channels(im: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """[H, W, C] -> (rgb [H, W, 3], alpha [H, W] or None): grey is repeated, a 2nd/4th channel is alpha."""
+    c = im.shape[2]
+    rgb = np.repeat(im[..., :1], 3, axis=-1) if c <= 2 else im[..., :3]
+    alpha = im[..., c - 1] if c in (2, 4) else None
+    return np.ascontiguousarray(rgb), alpha
+
+
+def read_mask(path: Path, width: int, height: int) -> np.ndarray:
+    """[H, W] float32 in [0, 1] of a mask file (grey, or the first channel / alpha of a colour one)."""
+    im = read_pixels(path, width, height)
+    return np.ascontiguousarray(im[..., 3] if im.shape[2] == 4 else im[..., 0])
+
+
+def read_rgba(path: Path, width: int, height: int) -> np.ndarray:
+    """[H, W, 4] float32 of an RGBA file as stored (no compositing): sgdr's own layout."""
+    im = read_pixels(path, width, height)
+    if im.shape[2] != 4:
+        fail(path, "<image>", f"expected RGBA [H, W, 4], got {im.shape[2]} channels")
+    return im
+
+
+def write_straight_rgba(path: Path, rgba: np.ndarray):
+    """Write premultiplied [H, W, 4] (RGB on black) as a straight-alpha PNG (foreign layouts)."""
+    rgba = np.asarray(rgba, dtype=np.float64)
+    a = rgba[..., 3:4]
+    rgb = np.where(a > 0, rgba[..., :3] / np.maximum(a, 1e-12), 0.0)
+    write_rgba(path, np.concatenate([np.clip(rgb, 0.0, 1.0), a], axis=-1))
 
 
 def write_rgba(path: Path, rgba: np.ndarray):

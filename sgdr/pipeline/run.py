@@ -280,7 +280,7 @@ class RunFolderError(ValueError):
     """A run folder that belongs to another sequence (it is never reused or overwritten)."""
 
 
-def claim_run_dir(run_dir: Path, seq_root: Path, digest: str) -> None:
+def claim_run_dir(run_dir: Path, seq_root: Path, digest: str, scene_file: str = "") -> None:
     """Make sure `run_dir` holds a run of this sequence before anything is written into it.
 
     A new folder is claimed (`RUN.json`: the sequence's path and digest). An existing folder is
@@ -319,7 +319,10 @@ def claim_run_dir(run_dir: Path, seq_root: Path, digest: str) -> None:
                 run_dir,
             )
     run_dir.mkdir(parents=True, exist_ok=True)
-    owner.write_text(json.dumps({"sequence": str(seq_root), "digest": digest}, indent=1))
+    record = {"sequence": str(seq_root), "digest": digest}
+    if scene_file:  # a foreign layout's scene file (`scene_file=`): later readers of the run need it too
+        record["scene_file"] = str(Path(scene_file).resolve())
+    owner.write_text(json.dumps(record, indent=1))
 
 
 # ------------------------------------------------------------------------------ the run
@@ -337,12 +340,14 @@ def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> Run
     validate(cfg)  # every config value, before any work
     seq_root = ensure_sequence(cfg)
     t_sequence = time.time() - t_start  # generation when the sequence was missing
-    seq = load_sequence(seq_root)
+    seq = load_sequence(seq_root, scene_file=cfg.scene_file)
     seq.check_images(progress)  # every image decodes, before any work
     name = default_run_name(cfg)
     run_dir = Path(run_dir) if run_dir is not None else Path(cfg.recon.output_dir) / name
     seq_hash = sequence_digest(seq_root)
-    claim_run_dir(run_dir, seq_root, seq_hash)
+    if cfg.scene_file:  # the scene is part of the data: another scene file redoes the stages
+        seq_hash = key_hash({"sequence": seq_hash, "scene_file": file_hash(Path(cfg.scene_file))})
+    claim_run_dir(run_dir, seq_root, seq_hash, cfg.scene_file)
     with RunTracker(
         run_dir,
         cfg,

@@ -36,6 +36,12 @@ def run_sequence(run_dir: Path) -> Path:
     return Path(json.loads(f.read_text())["sequence"])
 
 
+def run_scene_file(run_dir: Path) -> str:
+    """The scene file the run read its foreign-layout sequence with (RUN.json), or ""."""
+    f = run_dir / "RUN.json"
+    return str(json.loads(f.read_text()).get("scene_file", "")) if f.exists() else ""
+
+
 def _strict(obj):
     """NaN / inf -> None, numpy -> Python, so json.dumps(allow_nan=False) succeeds."""
     if isinstance(obj, dict):
@@ -71,7 +77,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
         raise FileNotFoundError(f"{asset_dir}: no asset; posterior.run must name a finished run folder")
     seq_dir = Path(pc.sequence) if pc.sequence else run_sequence(run_dir)
     asset = load_asset(asset_dir)
-    seq = load_sequence(seq_dir)
+    seq = load_sequence(seq_dir, scene_file=cfg.scene_file or (run_scene_file(run_dir) if not pc.sequence else ""))
     if seq.n_fit != asset.n_fit or len(seq.cameras) != len(asset.cameras):
         raise ValueError(
             f"posterior.sequence={seq_dir}: {seq.n_fit} fit frames and {len(seq.cameras)} views, the asset "

@@ -14,7 +14,8 @@ reset for the smaller arrays (3DGS instead subsets them; with rare prunings this
 The position learning rate decays exponentially from `lr_position` to `lr_position_final`
 (the 3DGS schedule).
 
-Inputs: RGBA images [H, W, 4] float32 in [0, 1] (alpha = mask) and their cameras (OpenCV).
+Inputs: RGBA images [H, W, 4] float32 in [0, 1], RGB premultiplied (on black), alpha = mask, as
+`Sequence.image` returns them, and their cameras (OpenCV).
 Output: detached `Gaussians` (isotropic, log-scale log(s0)).
 """
 
@@ -104,8 +105,8 @@ def _targets(images, background):
     rgbs, masks = [], []
     for img in images:
         img = np.asarray(img, dtype=np.float32)
-        a = img[..., 3:4]
-        rgbs.append(t.TensorXf(np.ascontiguousarray(img[..., :3] * a + bg * (1 - a))))
+        a = img[..., 3:4]  # RGB is premultiplied (on black, sgdr.data.sequence): over the background
+        rgbs.append(t.TensorXf(np.ascontiguousarray(img[..., :3] + bg * (1 - a))))
         masks.append(t.TensorXf(np.ascontiguousarray(img[..., 3])))
     return rgbs, masks
 

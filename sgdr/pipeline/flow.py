@@ -90,9 +90,37 @@ class RunContext:
 def static_produce(ctx: RunContext, out: Path, ckpt) -> None:
     from sgdr.static_fit.fit import fit_static
 
+    if "static" in ctx.seq.extras:  # a real capture: fit its static scan, register it into the dynamic frame
+        return _static_real_capture(ctx, out)
     images = [ctx.seq.image(v, 0) for v in range(len(ctx.cameras))]
     g = fit_static(images, ctx.cameras, ctx.cfg.static_fit, ctx.cfg.render, None, ctx.cfg.seed, progress=ctx.progress)
     save_ply(out / "gaussians.ply", g)
+
+
+def _static_real_capture(ctx: RunContext, out: Path) -> None:
+    """Sec. 4.2: Gaussians fitted to the scan (its own frame), then registered by the dynamic
+    views' frame-0 masks (`sgdr.realcap.scan`); gaussians.ply holds them in the dynamic frame."""
+    from sgdr.realcap.scan import fit_scan, register_scan
+
+    cfg = ctx.cfg
+    scan = fit_scan(ctx.seq.extras["static"], cfg.static_fit, cfg.render, cfg.seed, ctx.progress)
+    save_ply(out / "scan_gaussians.ply", scan)
+    g, reg = register_scan(scan, ctx.seq, cfg.static_fit, cfg.render, cfg.seed, ctx.progress)
+    save_ply(out / "gaussians.ply", g)
+    s, R, t = reg.as_similarity()
+    (out / "registration.json").write_text(
+        json.dumps(
+            {
+                "note": "X_dynamic = s R X_static + t (static = the scan's COLMAP frame)",
+                "s": s,
+                "R": R.tolist(),
+                "t": t.tolist(),
+                "official_form": {"s": reg.s, "R": reg.R.tolist(), "t": reg.t.tolist(), "c": reg.c.tolist()},
+                "losses": reg.losses,
+            },
+            indent=1,
+        )
+    )
 
 
 def static_load(ctx: RunContext, out: Path):

@@ -333,7 +333,7 @@ def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> Run
     The backend must be initialised by the caller (`sgdr.backend.init`).
     """
     from sgdr.config import validate
-    from sgdr.data import SequenceError, load_sequence
+    from sgdr.data import load_sequence
     from sgdr.tracking import RunTracker
 
     t_start = time.time()
@@ -341,12 +341,6 @@ def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> Run
     seq_root = ensure_sequence(cfg)
     t_sequence = time.time() - t_start  # generation when the sequence was missing
     seq = load_sequence(seq_root, scene_file=cfg.scene_file)
-    if seq.layout == "spring_gaus_real":  # reading and registration exist; the stages do not (docs/realcap.md)
-        raise SequenceError(
-            f"sequence={seq_root}: a Spring-Gaus real capture reads (static scan, dynamic cameras, masks), but the "
-            "reconstruction does not run real captures yet: its static-scan fit, registration and mask-driven "
-            "dynamic stages are not wired into the pipeline (docs/realcap.md)"
-        )
     seq.check_images(progress)  # every image decodes, before any work
     name = default_run_name(cfg)
     run_dir = Path(run_dir) if run_dir is not None else Path(cfg.recon.output_dir) / name

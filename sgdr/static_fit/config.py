@@ -25,6 +25,12 @@ class StaticFitConfig:
     carve_grid: int = 48  # voxels per side when the box is carved from the masks
     carve_extent: float = 0.5  # carving cube half-size, as a fraction of the mean camera distance
     box_margin: float = 0.05  # relative padding of the carved box
+    # a real capture's static scan is in COLMAP's arbitrary units: it is fitted in a frame scaled so its carved box's
+    # diagonal is this many scene units (the size s0 and the learning rates are meant for), then mapped back
+    scan_size: float = 0.5
+    register_iterations: int = 300  # a real capture: Adam steps of the registration into the dynamic frame
+    register_lr: float = 0.01  # its learning rate (6D rotation, translation in object sizes, log scale)
+    register_lambda_center: float = 1.0  # its mask-centre term's weight (the paper's LAMBDA_CENTER)
 
 
 # Allowed values, checked before any work (sgdr.checks).
@@ -45,4 +51,8 @@ CHECKS = {
     "carve_grid": at_least(2),
     "carve_extent": positive(),
     "box_margin": non_negative(),
+    "scan_size": positive(),
+    "register_iterations": non_negative(),
+    "register_lr": positive(),
+    "register_lambda_center": non_negative(),
 }

@@ -76,11 +76,12 @@ class Board:
 def board_image(
     camera: Camera, R_bc, t_bc, board: Board, white: float, black: float, background, supersample: int
 ) -> np.ndarray:
-    """[H, W] float64 linear intensity of the board seen by `camera` (module docstring).
+    """[H, W] (or [H, W, C]) float64 linear intensity of the board seen by `camera` (module docstring).
 
     R_bc [3, 3], t_bc [3]: board-to-camera pose, x_cam = R_bc X_board + t_bc. white / black:
-    linear intensities of the white and black squares; background: [H, W] (or scalar) linear
-    intensity where a ray misses the board; supersample: samples per pixel side.
+    linear intensities of the white and black squares; background: scalar, [H, W] or [H, W, C]
+    linear intensity where a ray misses the board (the result has its channels); supersample:
+    samples per pixel side.
     """
     R_bc, t_bc = np.asarray(R_bc, dtype=np.float64), np.asarray(t_bc, dtype=np.float64)
     s = int(supersample)
@@ -94,13 +95,16 @@ def board_image(
     d = rays @ R_bc  # ray directions in the board frame (R_bcᵀ d per row)
     with np.errstate(divide="ignore", invalid="ignore"):
         lam = -origin[2] / d[..., 2]
-    x, y = origin[0] + lam * d[..., 0], origin[1] + lam * d[..., 1]
-    refl = board.reflectance(x, y)
+    refl = board.reflectance(origin[0] + lam * d[..., 0], origin[1] + lam * d[..., 1])
     refl = np.where(lam > 0, refl, np.nan)
-    bg = np.broadcast_to(np.asarray(background, dtype=np.float64), (H, W))
-    bg_samples = np.repeat(np.repeat(bg, s, axis=0), s, axis=1)
-    value = np.where(np.isnan(refl), bg_samples, black + (white - black) * np.nan_to_num(refl))
-    return value.reshape(H, s, W, s).mean(axis=(1, 3))
+    # per pixel: the fraction of samples off the board (they see the background) and the board's share
+    miss = np.isnan(refl)
+    on = np.where(miss, 0.0, black + (white - black) * np.nan_to_num(refl)).reshape(H, s, W, s).mean(axis=(1, 3))
+    hit = (~miss).reshape(H, s, W, s).mean(axis=(1, 3))
+    bg = np.asarray(background, dtype=np.float64)
+    if bg.ndim == 3:
+        hit, on = hit[..., None], on[..., None]
+    return on + (1.0 - hit) * bg
 
 
 def canonical_order(corners: np.ndarray, gray: np.ndarray, board: Board) -> np.ndarray:

@@ -39,7 +39,8 @@ to board_tilt_deg at random, filling board_fill of the image width, fully inside
 The truth (gt/truth.json): the registration (s, R, t; also in the official parametrisation
 X_D = s R (X_S - c_S) + t_c about the static particles' centroid c_S, with the rough INIT_*
 written to config.yaml), U -> D, each video camera's K, R, t (D), the photo camera's K, fps,
-gravity, ground, hit frame (first frame off the free flight, as `sgdr.synth.generate`),
+gravity, ground, hit frame (`contact_frame`: the first frame the MPM's ground acts on; at 120
+fps sgdr.synth's centre-of-mass test of the generator flags it only frames later),
 v0 (D, m/s), the board (pattern, square, margin, every image's board-to-camera pose), the
 exposures and timings. gt/particles_<fff>.npy: [P, 3] float32 particles in D, metres.
 
@@ -48,8 +49,9 @@ settings and seed) last, then the folder is renamed to out_dir; a complete captu
 same settings is skipped, one with other settings is replaced only with `cfg.overwrite`, and a
 non-empty folder that is not a capture is never touched.
 
-Cost (tiny defaults, 2-core CPU, Dr.Jit kernel cache warm): 26 s in all, the photos and video
-frames' path tracing most of it.
+Cost on the 2-core CPU (measured, torus, seed 0): tiny (the defaults, conf/preset/tiny.yaml)
+6-8 s in all (MPM ~1 s, videos ~1.5 s, photos ~1.2 s, checkerboards ~1.2 s; 9.6 s wall for the
+driver with an empty Dr.Jit kernel cache, Python's start included); small 46 s.
 """
 
 from __future__ import annotations
@@ -128,10 +130,11 @@ def simulate_real_capture(out_dir, cfg, seed: int, progress: bool = True) -> Pat
     if partial.exists():
         shutil.rmtree(partial)
     partial.mkdir(parents=True)
-    _write_capture(partial, cfg, int(seed), progress)
+    timings = _write_capture(partial, cfg, int(seed), progress)
     if out.exists():
         shutil.rmtree(out)
     partial.rename(out)
+    log.info("%s: capture written, %s", out, {k: round(v, 2) for k, v in timings.items()})
     return out
 
 
@@ -169,6 +172,16 @@ def sim_to_dynamic(cfg: RealCaptureSimConfig, board: Board, ground_z: float, lan
     centre_u = np.array([landing_xy[0], landing_xy[1], ground_z])
     origin_u = centre_u - R.T @ board.centre() / m
     return Similarity(m, R, -m * R @ origin_u)
+
+
+def contact_frame(frames_u: np.ndarray, ground_z: float, dx: float) -> int:
+    """The first frame in which the MPM's ground acts: its lowest particle is within
+    `sgdr.synth.generate.CONTACT_CELLS` Δx of the plane (its B-spline stencil reaches the
+    collider band); frames before it are free flight. frames_u: [F, P, 3] simulation frame."""
+    from sgdr.synth.generate import CONTACT_CELLS
+
+    near = np.nonzero(frames_u[:, :, 2].min(1) - ground_z < CONTACT_CELLS * dx)[0]
+    return int(near[0]) if len(near) else len(frames_u) - 1
 
 
 def _ring_directions(elevations, n_views: int) -> np.ndarray:
@@ -230,7 +243,8 @@ def board_poses(camera: Camera, board: Board, n: int, tilt_deg: float, fill, rng
 
 
 # ---------------------------------------------------------------------------- writing
-def _write_capture(root: Path, cfg: RealCaptureSimConfig, seed: int, progress: bool) -> None:
+def _write_capture(root: Path, cfg: RealCaptureSimConfig, seed: int, progress: bool) -> dict:
+    """Write the whole capture into root; returns the timings (seconds per part)."""
     import cv2
     import mitsuba as mi
     from tqdm import tqdm
@@ -268,6 +282,7 @@ def _write_capture(root: Path, cfg: RealCaptureSimConfig, seed: int, progress: b
     frames_u, info = simulate_drop(obj, synth, progress=lambda f: bar.update())
     timings["mpm_s"] = time.perf_counter() - t0
     ground_z = float(info["ground_point"][2])
+    hit_frame = contact_frame(frames_u, ground_z, info["dx"])
 
     def surface(x):
         return surface_mesh(
@@ -371,11 +386,7 @@ def _write_capture(root: Path, cfg: RealCaptureSimConfig, seed: int, progress: b
         )
         poses[cam.name] = views
         for i, (R, t) in enumerate(views):
-            lum = np.stack(
-                [board_image(cam, R, t, board, BOARD_WHITE, BOARD_BLACK, plates[v, ..., c], cfg.board_supersample)
-                 for c in range(3)],
-                -1,
-            )  # fmt: skip
+            lum = board_image(cam, R, t, board, BOARD_WHITE, BOARD_BLACK, plates[v, ..., :3], cfg.board_supersample)
             image = expose(lum, cfg.video_exposure, cfg.video_wb, cfg.noise_sigma, rng_noise)
             write_jpeg(layout.checkerboard_dir(root, cam.name) / f"{i}.jpg", image, cfg.jpeg_quality)
         bar.update()
@@ -386,7 +397,7 @@ def _write_capture(root: Path, cfg: RealCaptureSimConfig, seed: int, progress: b
 
     # --- sequence files, config.yaml and the truth
     (root / "dynamic" / "sync.json").write_text(json.dumps({c: 0 for c in layout.CAMERAS}, indent=2))
-    seq = {"hit_frame": int(info["hit_frame"]), **{c: frame_files for c in layout.CAMERAS}}
+    seq = {"hit_frame": hit_frame, **{c: frame_files for c in layout.CAMERAS}}
     path = layout.sequence_file(root, obj_name, cfg.seq)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(seq, indent=2))
@@ -395,12 +406,13 @@ def _write_capture(root: Path, cfg: RealCaptureSimConfig, seed: int, progress: b
     for f, x in enumerate(particles_d):
         np.save(gt / f"particles_{f:03d}.npy", x.astype(np.float32))
     np.save(gt / "particle_colours.npy", obj.colours.astype(np.float32))
-    truth = _truth(cfg, seed, info, U2D, S2D, video_d, K_s, board, poses, particles_d, rng_init, timings)
+    truth = _truth(cfg, seed, info | {"contact_frame": hit_frame}, U2D, S2D, video_d, K_s, board, poses, particles_d,
+                   rng_init, timings)  # fmt: skip
     (gt / "truth.json").write_text(json.dumps(truth, indent=2))
     _write_config_yaml(root / "config.yaml", cfg, obj_name, truth, particles_d)
     marker = {"key": capture_key(cfg, seed), "timings": timings}
     (root / layout.COMPLETE).write_text(json.dumps(marker, indent=2))
-    log.info("%s: capture written %s", root, {k: round(v, 2) for k, v in timings.items()})
+    return timings
 
 
 def _write_ply(path: Path, points) -> None:
@@ -452,8 +464,9 @@ def _truth(cfg, seed, info, U2D, S2D, video_d, K_s, board, poses, particles_d, r
         "n_frames": int(cfg.n_frames),
         "gravity": [0.0, 0.0, float(cfg.gravity)],
         "ground": {"point": [0.0, 0.0, 0.0], "normal": [0.0, 0.0, -1.0]},
-        "hit_frame": int(info["hit_frame"]),
+        "hit_frame": int(info["contact_frame"]),
         "hit_frame_planned": int(cfg.hit_frame),
+        "hit_frame_com_1e-3": int(info["hit_frame"]),  # sgdr.synth's: centre of mass 1e-3 units off free flight
         "v0": U2D.apply_vector(cfg.v0).tolist(),
         "material": {"E": cfg.E, "nu": cfg.nu, "density_per_unit3": cfg.density, "law": "neo_hookean"},
         "mpm": {"dx": info["dx"], "substeps_per_frame": info["substeps_per_frame"], "dt": info["dt"]},
@@ -482,7 +495,8 @@ def _write_config_yaml(path: Path, cfg, obj_name: str, truth: dict, particles_d)
     allp = np.concatenate(particles_d)
     lo, hi = allp.min(0), allp.max(0)
     pad = 0.1 * float((hi - lo).max())
-    lo, hi = lo - pad, np.minimum(hi + pad, 0.0)  # the box stays on the object's side of the ground z = 0
+    lo, hi = lo - pad, hi + pad
+    hi[2] = min(hi[2], 0.0)  # the box stays on the object's side of the ground z = 0
     init = truth["registration"]["init"]
     data = {
         "TYPE": "Real_Capture",

@@ -51,7 +51,7 @@ non-empty folder that is not a capture is never touched.
 
 Cost on the 2-core CPU (measured, torus, seed 0): tiny (the defaults, conf/preset/tiny.yaml)
 6-8 s in all (MPM ~1 s, videos ~1.5 s, photos ~1.2 s, checkerboards ~1.2 s; 9.6 s wall for the
-driver with an empty Dr.Jit kernel cache, Python's start included); small 46 s.
+driver with an empty Dr.Jit kernel cache, Python's start included); small 34 s (videos 22 s).
 """
 
 from __future__ import annotations
@@ -406,8 +406,8 @@ def _write_capture(root: Path, cfg: RealCaptureSimConfig, seed: int, progress: b
     for f, x in enumerate(particles_d):
         np.save(gt / f"particles_{f:03d}.npy", x.astype(np.float32))
     np.save(gt / "particle_colours.npy", obj.colours.astype(np.float32))
-    truth = _truth(cfg, seed, info | {"contact_frame": hit_frame}, U2D, S2D, video_d, K_s, board, poses, particles_d,
-                   rng_init, timings)  # fmt: skip
+    frames = {"U2D": U2D, "S2D": S2D, "video": video_d, "K_s": K_s, "particles": particles_d}
+    truth = _truth(cfg, seed, info, hit_frame, frames, board, poses, rng_init, timings)
     (gt / "truth.json").write_text(json.dumps(truth, indent=2))
     _write_config_yaml(root / "config.yaml", cfg, obj_name, truth, particles_d)
     marker = {"key": capture_key(cfg, seed), "timings": timings}
@@ -429,9 +429,12 @@ def _euler_xyz_deg(R) -> list:
     return Rotation.from_matrix(R).as_euler("XYZ", degrees=True).tolist()
 
 
-def _truth(cfg, seed, info, U2D, S2D, video_d, K_s, board, poses, particles_d, rng, timings) -> dict:
+def _truth(cfg, seed, info, hit_frame, frames, board, poses, rng, timings) -> dict:
+    """gt/truth.json (module docstring). frames: the similarities U2D, S2D, the video cameras (D),
+    the photo K_s and the particles (D) per frame; rng draws the rough initial registration."""
     from scipy.spatial.transform import Rotation
 
+    U2D, S2D, video_d, K_s, particles_d = (frames[k] for k in ("U2D", "S2D", "video", "K_s", "particles"))
     c_s = S2D.inverse().apply(particles_d[0]).mean(0)
     t_c = S2D.apply(c_s[None])[0]  # the official translation: where the static centroid lands
     size = float(np.ptp(particles_d[0], axis=0).max())
@@ -464,7 +467,7 @@ def _truth(cfg, seed, info, U2D, S2D, video_d, K_s, board, poses, particles_d, r
         "n_frames": int(cfg.n_frames),
         "gravity": [0.0, 0.0, float(cfg.gravity)],
         "ground": {"point": [0.0, 0.0, 0.0], "normal": [0.0, 0.0, -1.0]},
-        "hit_frame": int(info["contact_frame"]),
+        "hit_frame": int(hit_frame),
         "hit_frame_planned": int(cfg.hit_frame),
         "hit_frame_com_1e-3": int(info["hit_frame"]),  # sgdr.synth's: centre of mass 1e-3 units off free flight
         "v0": U2D.apply_vector(cfg.v0).tolist(),

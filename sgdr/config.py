@@ -19,6 +19,8 @@ from sgdr.pipeline import config as recon_config
 from sgdr.pipeline.config import ReconConfig
 from sgdr.posterior import config as posterior_config
 from sgdr.posterior.config import PosteriorConfig
+from sgdr.realcap import config as realcap_config
+from sgdr.realcap.config import RealCaptureSimConfig
 from sgdr.render import config as render_config
 from sgdr.render.config import RenderConfig
 from sgdr.static_fit import config as static_fit_config
@@ -52,6 +54,7 @@ class Config:
     oracle: OracleConfig = field(default_factory=OracleConfig)  # experiments/oracle.py (sgdr.studies.oracle)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     posterior: PosteriorConfig = field(default_factory=PosteriorConfig)  # experiments/posterior.py
+    realcap: RealCaptureSimConfig = field(default_factory=RealCaptureSimConfig)  # experiments/simulate_capture.py
 
 
 # ---------------------------------------------------------------------------- checks
@@ -80,6 +83,7 @@ SECTION_CHECKS = {
     "tracking": tracking_config.CHECKS,
     "posterior": posterior_config.CHECKS,
     "posterior.priors": posterior_config.PRIOR_CHECKS,
+    "realcap": realcap_config.CHECKS,
 }
 
 
@@ -138,6 +142,7 @@ RULES = (
         else f"synth.hit_frame={c.synth.hit_frame} must be < synth.n_frames={c.synth.n_frames}"
     ),
     lambda c: posterior_config.rule_problem(c.posterior),
+    lambda c: realcap_config.rule_problem(c.realcap),
 )
 
 

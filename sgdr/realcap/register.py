@@ -10,11 +10,17 @@ with R from a continuous 6D vector (Zhou et al. 2019: two columns, Gram-Schmidt,
 t a translation, s a scale. They are found by gradient descent (Adam) on mask losses over the
 dynamic views at one frame (the object at rest before it is dropped, or frame 0):
 
-    L = mean_v [ mean_p |A_v(p) - M_v(p)|  +  λ_c |centroid(A_v) - centroid(M_v)|² / (W² + H²) ]
+    L = mean_v [ mean_p |A_v(p) - M_v(p)|  +  λ_c |centroid(A_v) - centroid(M_v)|² / (W² + H²)
+                 + λ_rgb mean_p |G_v C_v(p) - I_v(p)| ]
 
 A_v is the rendered alpha (sgdr's splatting renderer, differentiable w.r.t. the centres and
 scales), M_v the mask, and the mask-centre term (the paper's "mask-centre loss", `LAMBDA_CENTER`)
 pulls the silhouettes together when they barely overlap, where the L1 term has no gradient.
+The colour term (when the frame's RGB is given) compares the rendered colours C_v with the
+frame I_v, both premultiplied on black, through per-channel gains G_v fitted in closed form at
+each step (the scan and the videos differ in exposure and white balance). The official code
+registers on the RGB frames too (`real_must_img`): silhouettes alone leave the spin of a
+symmetric object (a torus about its axis) undetermined.
 Parameters are normalised so one learning rate fits all: t = t0 + ℓ δt with ℓ the initial
 object size in the dynamic frame, s = s0 exp(δs), the 6D vector starts at R0's columns.
 
@@ -35,6 +41,7 @@ class RegisterConfig:
     iterations: int = 200  # Adam steps
     lr: float = 0.01  # Adam learning rate of the normalised parameters (6D vector, δt in object sizes, δs)
     lambda_center: float = 1.0  # weight of the mask-centre term λ_c
+    lambda_rgb: float = 1.0  # weight of the colour term λ_rgb (0, or no images given: masks only)
     views_per_step: int = 0  # dynamic views rendered per step (0: all of them)
 
 
@@ -93,6 +100,23 @@ def _rotation_6d(t, a):
     return [[b1[i], b2[i], b3[i]] for i in range(3)]  # columns b1, b2, b3
 
 
+def _gain(t, rgb, target):
+    """Per-channel gains (detached, least squares) that bring the scan's colours to the video's
+    (the two recordings differ in exposure and white balance), broadcast to rgb's layout.
+    rgb, target: Float [H*W*3] interleaved."""
+    import drjit as dr
+
+    n = dr.width(target) // 3
+    idx = dr.arange(t.UInt32, n) * 3
+    gains = []
+    for c in range(3):
+        r = dr.detach(dr.gather(t.Float, rgb, idx + c))
+        y = dr.gather(t.Float, target, idx + c)
+        gains.append(dr.sum(r * y) / dr.maximum(dr.sum(r * r), 1e-8))
+    g = t.Float([float(x[0]) for x in gains])
+    return dr.gather(t.Float, g, dr.arange(t.UInt32, 3 * n) % 3)
+
+
 def mask_centroid(mask: np.ndarray) -> np.ndarray:
     """(u, v) pixel centroid of a mask [H, W] (pixel centres at +0.5)."""
     ys, xs = np.mgrid[0 : mask.shape[0], 0 : mask.shape[1]] + 0.5
@@ -101,7 +125,17 @@ def mask_centroid(mask: np.ndarray) -> np.ndarray:
 
 
 def register(
-    gaussians, cameras, masks, R0, t0, s0: float, cfg: RegisterConfig, render_cfg, seed: int = 0, progress: bool = False
+    gaussians,
+    cameras,
+    masks,
+    R0,
+    t0,
+    s0: float,
+    cfg: RegisterConfig,
+    render_cfg,
+    seed: int = 0,
+    progress: bool = False,
+    images=None,
 ) -> Registration:
     """Fit the similarity static -> dynamic frame to the dynamic masks (see the module docstring)."""
     import drjit as dr
@@ -124,12 +158,15 @@ def register(
     Xc = t.Array3f(*(t.Float((X - c)[:, i].astype(np.float32)) for i in range(3)))
     log_scales = t.Array3f(*(t.Float(p["log_scales"][:, i].astype(np.float32)) for i in range(3)))
     base = replace(gaussians)
-    targets, centres, grids = [], [], []
+    targets, centres, grids, colours = [], [], [], []
     for cam, m in zip(cameras, masks):
         m = np.asarray(m, dtype=np.float32)
         if m.shape != (cam.height, cam.width):
             raise ValueError(f"register: mask of camera {cam.name!r} is {m.shape}, the camera {cam.height}x{cam.width}")
         targets.append(t.Float(m.ravel()))
+        if images is not None:  # [H, W, 3|4] premultiplied RGB of the same frame
+            im = np.asarray(images[len(targets) - 1], dtype=np.float32)[..., :3]
+            colours.append(t.Float(np.ascontiguousarray(im).ravel()))
         centres.append(mask_centroid(m))
         ys, xs = np.mgrid[0 : cam.height, 0 : cam.width] + 0.5
         grids.append((t.Float(xs.ravel().astype(np.float32)), t.Float(ys.ravel().astype(np.float32))))
@@ -155,14 +192,19 @@ def register(
         loss = t.Float(0.0)
         for v in rng.permutation(len(cameras))[:n_views]:
             cam = cameras[v]
-            alpha = render(g, cam, render_cfg).alpha.array
+            out = render(g, cam, render_cfg)
+            alpha = out.alpha.array
             l1 = dr.mean(dr.abs(alpha - targets[v]))
             w = dr.maximum(dr.sum(alpha), 1e-6)
             cu, cv = dr.sum(alpha * grids[v][0]) / w, dr.sum(alpha * grids[v][1]) / w
             d2 = (dr.square(cu - float(centres[v][0])) + dr.square(cv - float(centres[v][1]))) / float(
                 cam.width**2 + cam.height**2
             )
-            loss = loss + (l1 + cfg.lambda_center * d2) / n_views
+            term = l1 + cfg.lambda_center * d2
+            if colours and cfg.lambda_rgb > 0:
+                rgb = out.rgb.array  # [H*W*3] interleaved, premultiplied on black
+                term = term + cfg.lambda_rgb * dr.mean(dr.abs(_gain(t, rgb, colours[v]) * rgb - colours[v]))
+            loss = loss + term / n_views
         dr.backward(loss)
         opt.step()
         losses.append(float(loss[0]))

@@ -6,12 +6,15 @@ carved from the scan's masks, so the constant scale s0 and the learning rates (s
 mean the same as on the benchmark; the Gaussians are fitted there (`sgdr.static_fit.fit_static`)
 and mapped back (centres X = X_n / k + o, log scales - log k).
 
-`register_scan`: `sgdr.realcap.register.register` on the dynamic sequence's frame 0 masks, from
+`register_scan`: `sgdr.realcap.register.register` on the dynamic sequence's frame 0 masks (and
+the video frame's colours when the capture has them), from
 the config's initial registration (DATA.REGIST: INIT_R Euler XYZ degrees, INIT_T, INIT_S);
 returns the Gaussians in the dynamic frame and the `Registration`.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -53,9 +56,15 @@ def register_scan(gaussians, seq, cfg, render_cfg, seed: int = 0, progress: bool
             "official configs give them"
         )
     masks = [seq.image(v, 0)[..., 3] for v in range(seq.n_views)]
-    rc = RegisterConfig(cfg.register_iterations, cfg.register_lr, cfg.register_lambda_center)
+    # the video frames' colours when there are any (masks as targets or not, as the official code registers)
+    has_rgb = seq.mask_paths is not None and all(
+        seq.image_paths[v][0] != seq.mask_paths[v][0] for v in range(seq.n_views)
+    )
+    rgb_seq = replace(seq, mask_only=False)
+    images = [rgb_seq.image(v, 0) for v in range(seq.n_views)] if has_rgb else None
+    rc = RegisterConfig(cfg.register_iterations, cfg.register_lr, cfg.register_lambda_center, cfg.register_lambda_rgb)
     R0 = euler_xyz_deg(init["rotation_euler_xyz_deg"])
     reg = register(
-        gaussians, seq.cameras, masks, R0, init["translation"], init["scale"], rc, render_cfg, seed, progress
+        gaussians, seq.cameras, masks, R0, init["translation"], init["scale"], rc, render_cfg, seed, progress, images
     )
     return reg.apply_gaussians(gaussians), reg

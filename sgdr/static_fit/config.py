@@ -31,6 +31,7 @@ class StaticFitConfig:
     register_iterations: int = 300  # a real capture: Adam steps of the registration into the dynamic frame
     register_lr: float = 0.01  # its learning rate (6D rotation, translation in object sizes, log scale)
     register_lambda_center: float = 1.0  # its mask-centre term's weight (the paper's LAMBDA_CENTER)
+    register_lambda_rgb: float = 1.0  # its colour term's weight (0: masks only; needs the video frames)
 
 
 # Allowed values, checked before any work (sgdr.checks).
@@ -55,4 +56,5 @@ CHECKS = {
     "register_iterations": non_negative(),
     "register_lr": positive(),
     "register_lambda_center": non_negative(),
+    "register_lambda_rgb": non_negative(),
 }

@@ -58,6 +58,21 @@ def test_reader_gives_the_true_cameras_and_scene(capture, tmp_path):
     for cam, ref in zip(load_sequence(copy).cameras, seq.cameras):
         np.testing.assert_allclose(cam.K, ref.K, rtol=1e-9)
 
+    # only checkerboard images and background plates: calibrated with OpenCV, matted against the plate
+    bare = tmp_path / "bare"
+    shutil.copytree(root, bare)
+    (bare / "dynamic" / "cameras_calib.json").unlink()
+    shutil.rmtree(bare / "dynamic" / "videos_masks" / "C0801")
+    cal = load_sequence(bare)
+    for cam, ref in zip(cal.cameras, seq.cameras):
+        assert abs(cam.K[0, 0] / ref.K[0, 0] - 1) < 0.02, cam.name
+        angle = np.degrees(np.arccos(np.clip((np.trace(cam.R.T @ ref.R) - 1) / 2, -1, 1)))
+        assert angle < 1.0, (cam.name, angle)
+        assert np.linalg.norm(cam.centre - ref.centre) < 0.02 * np.linalg.norm(ref.centre), cam.name  # of the distance
+    for f in (0, seq.n_frames - 1):
+        found, true = cal.image(2, f)[..., 3] > 0.5, seq.image(2, f)[..., 3] > 0.5
+        assert (found & true).sum() / (found | true).sum() > 0.8, f
+
     # errors name the file and the field
     name = json.loads((copy / "dynamic" / "sequences" / "torus" / "0.json").read_text())["C0787"][2]
     (copy / "dynamic" / "videos_masks" / "C0787" / Path(name).with_suffix(".png").name).unlink()

@@ -4,7 +4,7 @@ Layouts (a `sgdr.registry.Registry`, name -> (marker file, reader)):
 - `sgdr`: `sequence.json` (`sgdr.data.sequence`, sgdr's own format)
 - `spring_gaus`: `camera.json` (`sgdr.data.foreign`)
 - `pac_nerf`: `all_data.json` (`sgdr.data.foreign`)
-- `spring_gaus_real`: `dynamic/cameras_calib.json` (`sgdr.data.real_capture`)
+- `spring_gaus_real`: `dynamic/sequences/` (`sgdr.data.real_capture`)
 
 This module sits above `sequence` and `foreign` (foreign builds on sequence's helpers; neither
 imports this one), so the two readers do not import each other.
@@ -48,9 +48,9 @@ _LAYOUT_TITLES = {
 
 
 def detect_layout(root: Path) -> str:
-    """The name of the first layout whose marker file is in `root` (in `LAYOUTS` order)."""
+    """The name of the first layout whose marker (a file, or a folder) is in `root` (in `LAYOUTS` order)."""
     for name, (marker, _) in LAYOUTS.items():
-        if (Path(root) / marker).is_file():
+        if (Path(root) / marker).exists():
             return name
     expected = ", ".join(f"{marker} ({_LAYOUT_TITLES[name]})" for name, (marker, _) in LAYOUTS.items())
     raise SequenceError(f"{root}: no sequence found: expected {expected}")

@@ -55,7 +55,7 @@ from sgdr.data.sequence import (
     scene_fields,
 )
 
-MARKER = "dynamic/cameras_calib.json"
+MARKER = "dynamic/sequences"
 OFFICIAL_CAMERAS = ("C0733", "C0787", "C0801")  # hard-coded by the official loader
 IMAGE_CHANNELS = (1, 2, 3, 4)
 
@@ -184,13 +184,12 @@ def read_real_capture(root: Path, scene_file=None, **overrides) -> Sequence:
     height = _need(checks, "DATA.H", "height", config)
     dyn = root / "dynamic"
     calib_file = dyn / "cameras_calib.json"
-    calib = read_json(calib_file)
-    if not isinstance(calib, dict) or not calib:
-        fail(calib_file, "<root>", "expected an object {camera: {rvecs, tvecs}}")
     seq_file = dyn / "sequences" / obj / f"{seq_name}.json"
     seq_info = read_json(seq_file)
     if not isinstance(seq_info, dict):
         fail(seq_file, "<root>", "expected an object {hit_frame, <camera>: [frames]}")
+    listed = [c for c, v in seq_info.items() if isinstance(v, list)]
+    calib = read_calibration(dyn, calib_file, listed)
     names = (
         list(OFFICIAL_CAMERAS)
         if all(c in calib for c in OFFICIAL_CAMERAS)
@@ -199,9 +198,9 @@ def read_real_capture(root: Path, scene_file=None, **overrides) -> Sequence:
     if not names:
         fail(seq_file, "<cameras>", f"lists frames of none of the cameras of {calib_file.name} ({sorted(calib)})")
     static = read_static_scan(root / "static", obj)
-    cameras, paths, masks, n_frames = [], [], [], None
+    cameras, paths, masks, plates, n_frames = [], [], [], [], None
     for name in names:
-        entry = require(calib, name, calib_file)
+        entry = calib[name]
         rvec = np.asarray(require(entry, "rvecs", calib_file), dtype=np.float64).reshape(-1)
         tvec = np.asarray(require(entry, "tvecs", calib_file), dtype=np.float64).reshape(-1)
         if rvec.shape != (3,) or tvec.shape != (3,):
@@ -239,11 +238,23 @@ def read_real_capture(root: Path, scene_file=None, **overrides) -> Sequence:
         elif len(frames) != n_frames:
             fail(seq_file, name, f"lists {len(frames)} frames, camera {names[0]} {n_frames}")
         view_paths, view_masks = [], []
+        plate = dyn / "background" / f"{name}.jpg"
+        from_plate = not (dyn / "videos_masks" / name).is_dir() and plate.is_file()
+        if from_plate:
+            log.info("%s: camera %s has no masks: matted against its background plate %s", root, name, plate)
+            check_size(plate, width, height, f"background of {name}")
         for f, frame in enumerate(frames):
             image = dyn / "videos_images" / name / str(frame)
             mask = (dyn / "videos_masks" / name / str(frame).replace(".jpg", ".png")).with_suffix(".png")
+            if from_plate:
+                if not image.is_file():
+                    fail(image, f"{name}[{f}]", "video frame is missing (the masks come from it and the plate)")
+                check_size(image, width, height, f"{name}[{f}]")
+                view_paths.append(image)
+                continue
             if not mask.is_file():
-                fail(mask, f"{name}[{f}]", "mask of the video frame is missing")
+                fail(mask, f"{name}[{f}]", f"mask of the video frame is missing (and no background plate {plate.name} "
+                     "to matte the frames against)" if not plate.is_file() else "mask of the video frame is missing")
             if not image.is_file():
                 if not checks.get("img_is_mask"):
                     fail(
@@ -251,15 +262,12 @@ def read_real_capture(root: Path, scene_file=None, **overrides) -> Sequence:
                     )
                 image = mask  # masks are the targets; the official loader never opens the frame
             for p in (image, mask):
-                w, h, c = png_header(p)
-                if (w, h) != (width, height):
-                    fail(p, f"{name}[{f}]", f"image is {w}x{h}, the config says DATA.W x DATA.H = {width}x{height}")
-                if c not in IMAGE_CHANNELS:
-                    fail(p, f"{name}[{f}]", f"image has {c} channels")
+                check_size(p, width, height, f"{name}[{f}]")
             view_paths.append(image)
             view_masks.append(mask)
         paths.append(view_paths)
-        masks.append(view_masks)
+        masks.append(None if from_plate else view_masks)
+        plates.append(plate if from_plate else None)
     meta = {"n_fit": n_frames, **scene}
     meta["hit_frame"] = require(seq_info, "hit_frame", seq_file)
     meta.update({k: v for k, v in overrides.items() if v is not None})
@@ -285,10 +293,52 @@ def read_real_capture(root: Path, scene_file=None, **overrides) -> Sequence:
         gt_dir=None,
         alpha_mode="straight",
         mask_paths=masks,
+        backgrounds=plates if any(p is not None for p in plates) else None,
         mask_only=bool(checks.get("img_is_mask", False)),
         extras={"static": static, "registration_init": init, "config": str(config)},
         **scene_fields(meta, config),
     )
+
+
+def check_size(path: Path, width: int, height: int, where: str):
+    w, h, c = png_header(path)
+    if (w, h) != (width, height):
+        fail(path, where, f"image is {w}x{h}, the config says DATA.W x DATA.H = {width}x{height}")
+    if c not in IMAGE_CHANNELS:
+        fail(path, where, f"image has {c} channels")
+
+
+def read_calibration(dyn: Path, calib_file: Path, cameras: list[str]) -> dict:
+    """cameras_calib.json, or, without it, a calibration from the checkerboard images
+    (`dynamic/checkerboard/<camera>/<i>.jpg`, image 0 showing the world board, and
+    `dynamic/checkerboard/pattern.json` {"pattern": [cols, rows], "square_size"}) with OpenCV
+    (`sgdr.realcap.calibrate`); entries {rvecs, tvecs, K, dist} either way."""
+    if calib_file.is_file():
+        calib = read_json(calib_file)
+        if not isinstance(calib, dict) or not calib:
+            fail(calib_file, "<root>", "expected an object {camera: {rvecs, tvecs}}")
+        return calib
+    from sgdr.realcap.calibrate import CalibrationError, calibrate_from_checkerboards
+
+    pattern_file = dyn / "checkerboard" / "pattern.json"
+    if not pattern_file.is_file():
+        fail(calib_file, "<file>", f"missing, and no checkerboard images to calibrate from ({pattern_file} is missing)")
+    spec = read_json(pattern_file)
+    pattern = require(spec, "pattern", pattern_file)
+    square = float(require(spec, "square_size", pattern_file))
+    calib = {}
+    for name in cameras:
+        folder = dyn / "checkerboard" / name
+        images = sorted(folder.glob("*.jpg"), key=lambda p: (len(p.stem), p.stem)) if folder.is_dir() else []
+        if not images:
+            fail(folder, name, "no checkerboard images (<i>.jpg) for this camera, and no cameras_calib.json")
+        try:
+            c = calibrate_from_checkerboards(images, pattern, square)
+        except CalibrationError as e:
+            fail(folder, name, str(e))
+        log.info("%s: camera %s calibrated from %d checkerboard images (rms %.3f px)", dyn, name, len(images), c.rms)
+        calib[name] = {"rvecs": c.rvec.tolist(), "tvecs": c.tvec.tolist(), "K": c.K.tolist(), "dist": c.dist.tolist()}
+    return calib
 
 
 def _colmap_focal(static: Sequence, root: Path) -> tuple[float, float]:

@@ -75,7 +75,7 @@ class Sequence:
     layout: str = "sgdr"  # "sgdr" | "spring_gaus" | "pac_nerf" | "spring_gaus_real"
     gt_dir: Path | None = None  # ground-truth folder (sgdr layout with gt/), else None
     alpha_mode: str = "premultiplied"  # how the files store RGB: "premultiplied" (on black) | "straight"
-    mask_paths: list[list[Path]] | None = field(repr=False, default=None)  # [view][frame] mask files, else None
+    mask_paths: list[list[Path] | None] | None = field(repr=False, default=None)  # [view][frame] mask files, else None
     backgrounds: list[Path | None] | None = field(repr=False, default=None)  # [view] clean plates to matte against
     mask_only: bool = False  # the targets are the masks themselves (RGB = mask; Spring-Gaus IMG_IS_MASK)
     resize: bool = False  # an image of another size than its camera is resized to it (the mask's size)
@@ -108,7 +108,7 @@ class Sequence:
             )
         rgb, alpha = split_channels(im)
         straight = self.alpha_mode == "straight"
-        if self.mask_paths is not None:
+        if self.mask_paths is not None and self.mask_paths[view_index] is not None:
             alpha, straight = read_mask(self.mask_paths[view_index][frame], cam.width, cam.height), True
         elif self.backgrounds is not None and self.backgrounds[view_index] is not None:
             from sgdr.data.matte import matte

@@ -13,6 +13,7 @@
     <root>/dynamic/videos_masks/<cam>/<frame>.png
     <root>/dynamic/background/<cam>.jpg         a clean plate per camera
     <root>/dynamic/checkerboard/<cam>/<i>.jpg   calibration images (image 0: the world board)
+    <root>/dynamic/checkerboard/pattern.json    the board: inner corners and square size
     <root>/gt/truth.json, gt/particles_<fff>.npy  ground truth of a simulated capture only
 
 The official loader hard-codes the three camera names (`CAMERAS`) and derives a mask's path
@@ -56,6 +57,11 @@ def background_plate(root, cam: str) -> Path:
 
 def checkerboard_dir(root, cam: str) -> Path:
     return Path(root) / "dynamic" / "checkerboard" / cam
+
+
+def checkerboard_pattern_file(root) -> Path:
+    """{"pattern": [cols, rows] inner corners, "square_size": side in the dynamic frame's units}."""
+    return Path(root) / "dynamic" / "checkerboard" / "pattern.json"
 
 
 def sequence_file(root, obj: str, seq) -> Path:

@@ -390,6 +390,9 @@ def _write_capture(root: Path, cfg: RealCaptureSimConfig, seed: int, progress: b
             image = expose(lum, cfg.video_exposure, cfg.video_wb, cfg.noise_sigma, rng_noise)
             write_jpeg(layout.checkerboard_dir(root, cam.name) / f"{i}.jpg", image, cfg.jpeg_quality)
         bar.update()
+    layout.checkerboard_pattern_file(root).write_text(
+        json.dumps({"pattern": [board.cols, board.rows], "square_size": board.square})
+    )
     calib = {c.name: Calibration(K_d, np.zeros(5), cv2.Rodrigues(c.R)[0].reshape(3), c.t, 0.0) for c in video_d}
     write_cameras_calib(root / "dynamic" / "cameras_calib.json", calib)
     timings["boards_s"] = time.perf_counter() - t0

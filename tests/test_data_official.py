@@ -228,3 +228,14 @@ def test_matte_against_a_plate_ignores_noise_and_keeps_the_object():
     assert alpha[obj[..., 3] == 0].max() < 0.5 and alpha[obj[..., 3] == 1].min() > 0.5
     with pytest.raises(ValueError, match="differ in shape"):
         matte(noisy, bg[:-1])
+
+
+def test_spring_gaus_principal_point_is_the_image_centre_as_the_official_loader_reads_it(tmp_path):
+    cfg = official_repo(tmp_path)
+    root = write_spring_gaus(tmp_path / "blob", cameras(), frames(cameras(), 8))
+    entries = json.loads((root / "camera.json").read_text())
+    entries[1]["K"][0][2] += 3.0  # the official loader keeps only FovX = 2 atan(W / 2 fx): cx is ignored
+    (root / "camera.json").write_text(json.dumps(entries))
+    seq = load_sequence(root, scene_file=cfg)
+    np.testing.assert_allclose(seq.cameras[1].K[:2, 2], [W / 2, H / 2])
+    np.testing.assert_allclose(seq.cameras[1].K[0, 0], entries[1]["K"][0][0])

@@ -1,7 +1,8 @@
 """Readers (and fixture writers) for the Spring-Gaus and PAC-NeRF sequence layouts, as released.
 
 Spring-Gaus synthetic (`camera.json`): a JSON list with one entry per camera,
-`{"camera": name, "K": [3,3], "c2w": [4,4] Blender/OpenGL}`; images `<camera>/<fff>.png`
+`{"camera": name, "K": [3,3], "c2w": [4,4] Blender/OpenGL}` (as the official loader, only the
+focal lengths of K are used: the principal point is the image centre); images `<camera>/<fff>.png`
 (RGBA, straight alpha; RGB or grey images are read as opaque, as the official loader's
 `convert("RGBA")` does). The image size is read from the images; the frames are every
 `<number>.png` of a camera's folder, which must run from 000 without a gap and agree between
@@ -162,6 +163,18 @@ def numbered_frames(folder: Path, where: str) -> list[Path]:
 
 
 # ---------------------------------------------------------------------------- Spring-Gaus
+def official_centre(K: np.ndarray, width: int, height: int, where: str) -> np.ndarray:
+    """K with the principal point at the image centre: the official Spring-Gaus loaders keep only
+    the field of view (FovX, FovY from fx, fy and the image size) and its rasteriser centres the
+    projection, so a K whose cx, cy say otherwise is read as the official code reads it (warned)."""
+    K = np.array(K, dtype=np.float64)
+    if abs(K[0, 2] - width / 2) > 1e-6 or abs(K[1, 2] - height / 2) > 1e-6:
+        log.warning("%s: principal point (%.3f, %.3f) is not the image centre (%.1f, %.1f); the official loader "
+                    "ignores it (field of view only), so does sgdr", where, K[0, 2], K[1, 2], width / 2, height / 2)
+    K[0, 2], K[1, 2] = width / 2, height / 2
+    return K
+
+
 def read_spring_gaus(root: Path, scene_file=None, **scene) -> Sequence:
     file = root / SPRING_GAUS_FILE
     entries = read_json(file)
@@ -180,6 +193,7 @@ def read_spring_gaus(root: Path, scene_file=None, **scene) -> Sequence:
             fail(folder, f"{where}.camera", f"image folder of camera {name!r} is missing")
         frames = numbered_frames(folder, f"{where}.camera")
         width, height, _ = png_header(frames[0])
+        K = official_centre(K, width, height, f"{file} {where}.K")
         try:
             cam = Camera.from_c2w_opengl(c2w, K, width, height, name)
         except CameraError as e_:

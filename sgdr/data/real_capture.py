@@ -6,7 +6,8 @@
   static/colmap/<obj>/images.bin          COLMAP poses: qvec, tvec (world-to-camera), camera id, photo name
   static/images/<obj>/<name>.JPG          the photos of the object at rest
   static/masks/<obj>/<name>.png           their masks (name with .JPG -> .png); a photo of another size is
-                                          resized to its mask, as the official loader does
+                                          resized to its mask, as the official loader does (which keeps
+                                          COLMAP's focal lengths unscaled and centres the principal point)
   dynamic/cameras_calib.json              {camera: {"rvecs": [3], "tvecs": [3], ...}} OpenCV world-to-camera
   dynamic/sequences/<obj>/<seq>.json      {"hit_frame": int, <camera>: [frame file names], ...}
   dynamic/videos_images/<camera>/<frame>.jpg
@@ -44,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from sgdr.cameras import Camera, CameraError
+from sgdr.data.foreign import official_centre
 from sgdr.data.official_config import read_spring_gaus_yaml, spring_gaus_scene
 from sgdr.data.sequence import (
     Sequence,
@@ -143,9 +145,13 @@ def read_static_scan(static_dir: Path, obj: str) -> Sequence:
         if not mask.is_file():
             fail(mask, f"image {image_id}.name", "mask of the static scan photo is missing")
         mw, mh, _ = png_header(mask)
-        K = colmap_intrinsics(model, cw, ch, params, colmap_dir / "cameras.bin")
-        if (mw, mh) != (cw, ch):  # the image is resized to its mask: so are the intrinsics
-            K = np.diag([mw / cw, mh / ch, 1.0]) @ K
+        # as the official loader: FovX, FovY from COLMAP's focal lengths and the mask's size (a photo of another
+        # size is resized to its mask), principal point at the centre
+        K = official_centre(colmap_intrinsics(model, cw, ch, params, colmap_dir / "cameras.bin"), mw, mh,
+                            f"{colmap_dir / 'cameras.bin'} camera {camera_id}")
+        if (mw, mh) != (cw, ch) and image_id == min(images):
+            log.warning("%s: COLMAP camera %d is %dx%d, the masks %dx%d: as the official loader, its focal lengths are "
+                        "used unscaled with the mask's size", colmap_dir, camera_id, cw, ch, mw, mh)
         try:
             cameras.append(
                 Camera(K, quat_to_rotation(qvec), np.asarray(tvec, dtype=np.float64), mw, mh, Path(name).stem)

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sgdr.data.sequence import fail
+from sgdr.data.sequence import fail, read_json
 
 log = logging.getLogger(__name__)
 
@@ -271,17 +271,10 @@ def pac_nerf_scene(cfg: dict, file) -> tuple[dict, dict]:
 def read_scene_file(path) -> tuple[dict, dict, str]:
     """(scene, checks, kind) of a scene file by its extension: `.json` sgdr's `sgdr_scene.json`
     form (scene keys at the top), `.yaml`/`.yml` a Spring-Gaus config, `.py` a PAC-NeRF config."""
-    import json
-
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".json":
-        if not path.is_file():
-            fail(path, "<file>", "scene file is missing")
-        try:
-            data = json.loads(path.read_text())
-        except json.JSONDecodeError as e:
-            fail(path, "<json>", f"not valid JSON ({e})")
+        data = read_json(path)
         if not isinstance(data, dict):
             fail(path, "<root>", "expected a JSON object")
         return data, {}, "sgdr"

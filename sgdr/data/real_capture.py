@@ -106,21 +106,9 @@ def colmap_intrinsics(model: str, width: int, height: int, params, where) -> np.
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
-def quat_to_rotation(q) -> np.ndarray:
-    """COLMAP qvec (w, x, y, z) -> [3, 3] rotation."""
-    w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
 def read_static_scan(static_dir: Path, obj: str) -> Sequence:
     """The static scan as a one-frame Sequence: COLMAP cameras, photos composited with their masks."""
-    from sgdr.realcap.colmap import read_colmap
+    from sgdr.realcap.colmap import qvec_to_rotmat, read_colmap
 
     colmap_dir = static_dir / "colmap" / obj
     for name in ("cameras.bin", "images.bin"):
@@ -154,7 +142,7 @@ def read_static_scan(static_dir: Path, obj: str) -> Sequence:
                         "used unscaled with the mask's size", colmap_dir, camera_id, cw, ch, mw, mh)
         try:
             cameras.append(
-                Camera(K, quat_to_rotation(qvec), np.asarray(tvec, dtype=np.float64), mw, mh, Path(name).stem)
+                Camera(K, qvec_to_rotmat(qvec), np.asarray(tvec, dtype=np.float64), mw, mh, Path(name).stem)
             )
         except CameraError as e:
             fail(where, f"image {image_id}", str(e))

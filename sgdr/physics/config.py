@@ -38,6 +38,12 @@ class PhysicsConfig:
     friction_init: float = 0.9  # μ: "project": tangential factor per substep; "coulomb": coefficient
     restitution_init: float = 0.0  # e in [0, 1] ("coulomb" contact only)
     min_length: float = 1.0e-9  # scene units; guards |x_i - x_j| and |Δl| against 0 (NaN gradients)
+    # --- model extensions (sgdr.physics.extensions): each one's default is the base model
+    air_drag: float = 0.0  # linear air drag rate c, 1/s: v <- (v + dt a) / (1 + c dt) every substep
+    gravity_scale: float = 1.0  # the gravity used is the sequence's times this
+    ground_offset: float = 0.0  # the ground plane moved along its normal by this, scene units
+    ground_tilt_deg: float = 0.0  # the ground's normal tilted by this angle, degrees
+    ground_tilt_azimuth_deg: float = 0.0  # the in-plane direction it tilts towards, degrees (sgdr.physics.extensions)
 
 
 # Allowed values, checked before any work (sgdr.checks; names against their registries).
@@ -57,6 +63,11 @@ CHECKS = {
     "n_c": non_negative(),
     "log10_k_init": finite(),
     "kappa_init": finite(),
+    "air_drag": non_negative("1/s; 0: no drag"),
+    "gravity_scale": positive(),
+    "ground_offset": finite(),
+    "ground_tilt_deg": between(-45.0, 45.0),
+    "ground_tilt_azimuth_deg": finite(),
     "friction_init": non_negative(),
     "restitution_init": between(0.0, 1.0),
     "min_length": positive(),

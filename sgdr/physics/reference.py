@@ -107,11 +107,16 @@ def contact(x, v, point, normal, p: dict, dt: float, cfg: PhysicsConfig):
 
 
 def substep(m: dict, p: dict, x, v, ground, dt: float, cfg: PhysicsConfig):
-    """Semi-implicit Euler (Eqs. 10-12) then contact (Eq. 13)."""
+    """Semi-implicit Euler (Eqs. 10-12) then contact (Eq. 13), with the model extensions
+    (`sgdr.physics.extensions`: gravity scale, implicit air drag, moved / tilted ground)."""
+    from sgdr.physics.extensions import ground_plane
+
+    p = dict(p, gravity=float(cfg.gravity_scale) * np.asarray(p["gravity"], dtype=np.float64))
     f = spring_force(m, p, x, v, cfg)
-    v = v + dt * (f / m["particle_mass"][:, None] + p["gravity"][None, :])
+    v = (v + dt * (f / m["particle_mass"][:, None] + p["gravity"][None, :])) / (1.0 + float(cfg.air_drag) * dt)
     x = x + dt * v
-    return contact(x, v, np.asarray(ground.point), np.asarray(ground.normal), p, dt, cfg)
+    point, normal = ground_plane(ground.point, ground.normal, cfg)
+    return contact(x, v, point, normal, p, dt, cfg)
 
 
 def simulate_frame(m: dict, p: dict, x, v, ground, dt_frame: float, n_substeps: int, cfg: PhysicsConfig):

@@ -71,6 +71,7 @@ from sgdr.arrays import scalar, to_numpy
 from sgdr.backend import ad
 from sgdr.physics.adjoint import frame_gather
 from sgdr.physics.config import PhysicsConfig
+from sgdr.physics.extensions import drag_factor, ground_plane
 from sgdr.physics.laws import (
     CONTACTS,
     LN10,
@@ -271,16 +272,18 @@ def check_inputs(
 # --------------------------------------------------------------------------------------------
 
 
-def _frame_constants(model: SpringModel, params: PhysParams, ground: Ground):
-    """Per-frame values shared by all substeps (AD-attached to params where they depend on it)."""
+def _frame_constants(model: SpringModel, params: PhysParams, ground: Ground, cfg: PhysicsConfig):
+    """Per-frame values shared by all substeps (AD-attached to params where they depend on it);
+    the ground and |g| as the model extensions make them (`sgdr.physics.extensions`)."""
     t = ad()
+    point, normal = ground_plane(ground.point, ground.normal, cfg)
     return {
         "k": dr.exp(LN10 * params.log10_k),  # k_i [N_A]
         "sp": softplus(params.kappa),  # softplus(κ) [1]
         "inv_m": dr.rcp(model.particle_mass),  # [N_A]
-        "point": t.Array3f(*map(float, ground.point)),
-        "normal": t.Array3f(*map(float, ground.normal)),
-        "g_norm": dr.opaque(t.Float, float(np.linalg.norm(to_numpy(params.gravity)))),
+        "point": t.Array3f(*map(float, point)),
+        "normal": t.Array3f(*map(float, normal)),
+        "g_norm": dr.opaque(t.Float, float(cfg.gravity_scale) * float(np.linalg.norm(to_numpy(params.gravity)))),
     }
 
 
@@ -296,7 +299,11 @@ def euler_contact(x, v, f, gravity, friction, restitution, consts, dt: float, cf
     consts = (inv_m, plane point, plane normal, |g|) from `_frame_constants`."""
     inv_m, point, normal, g_norm = consts
     contact = CONTACTS.get_named(cfg.contact, "physics.contact")
+    if cfg.gravity_scale != 1.0:  # extension: gravity's magnitude
+        gravity = gravity * dr.opaque(ad().Float, float(cfg.gravity_scale))
     v = v + dt * (f * inv_m + gravity)  # Eq. 11
+    if cfg.air_drag != 0.0:  # extension: implicit linear air drag
+        v = v * dr.opaque(ad().Float, drag_factor(cfg, dt))
     x = x + dt * v  # Eq. 12
     return contact(x, v, point, normal, _Boundary(friction, restitution), dt, g_norm, cfg)  # Eq. 13
 
@@ -369,7 +376,7 @@ def simulate_frame(
         check_inputs(model, params, state, dt_frame, n_substeps, cfg)
     dt = float(dt_frame) / int(n_substeps)
     stepper = ADJOINTS.get_named(cfg.adjoint, "physics.adjoint")
-    state = stepper(model, params, state, _frame_constants(model, params, ground), dt, int(n_substeps), cfg)
+    state = stepper(model, params, state, _frame_constants(model, params, ground, cfg), dt, int(n_substeps), cfg)
     if check and not bool(dr.all(dr.isfinite(dr.detach(state.x)) & dr.isfinite(dr.detach(state.v)), axis=None)):
         raise SimulationUnstable(
             f"NaN/inf after {n_substeps} substeps of {dt:.3g} s (spring_law={cfg.spring_law}, "

@@ -44,7 +44,7 @@ def internal_impulses(model, params, ground, n_frames: int, dt_frame: float, n_s
     with dr.suspend_grad():
         p = params.detach()
         dr.eval(p.kappa, p.v0, p.friction, p.restitution, p.zeta0, p.gravity)
-        c = _frame_constants(model, p, ground)
+        c = _frame_constants(model, p, ground, cfg)
         state = SimState.at_rest(model, p.v0)
         x, v = state.x, state.v
         for _ in range(1, int(n_frames)):

@@ -200,7 +200,7 @@ def batched_rollout(
         finite = np.ones(S, dtype=bool)
         positions[0] = to_numpy(state.x)
         for f in range(1, n_frames):
-            state = stepper(replica, params, state, _frame_constants(replica, params, ground), dt, n_sub, cfg)
+            state = stepper(replica, params, state, _frame_constants(replica, params, ground, cfg), dt, n_sub, cfg)
             positions[f] = to_numpy(state.x)
             v = to_numpy(state.v)
             finite &= np.isfinite(positions[f]).reshape(3, S, n).all(axis=(0, 2))

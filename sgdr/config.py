@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 from sgdr.anchors import config as anchors_config
 from sgdr.anchors.config import AnchorConfig
 from sgdr.checks import ConfigError, any_text, choice, non_empty_text, non_negative, section_problems
+from sgdr.discrepancy import config as diagnose_config
+from sgdr.discrepancy.config import DiagnoseConfig
 from sgdr.physics import config as physics_config
 from sgdr.physics.config import PhysicsConfig
 from sgdr.pipeline import config as recon_config
@@ -54,6 +56,7 @@ class Config:
     oracle: OracleConfig = field(default_factory=OracleConfig)  # experiments/oracle.py (sgdr.studies.oracle)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     posterior: PosteriorConfig = field(default_factory=PosteriorConfig)  # experiments/posterior.py
+    diagnose: DiagnoseConfig = field(default_factory=DiagnoseConfig)  # experiments/diagnose.py
     realcap: RealCaptureSimConfig = field(default_factory=RealCaptureSimConfig)  # experiments/simulate_capture.py
 
 
@@ -82,6 +85,7 @@ SECTION_CHECKS = {
     "oracle": oracle_config.CHECKS,
     "tracking": tracking_config.CHECKS,
     "posterior": posterior_config.CHECKS,
+    "diagnose": diagnose_config.CHECKS,
     "posterior.priors": posterior_config.PRIOR_CHECKS,
     "realcap": realcap_config.CHECKS,
 }

@@ -52,10 +52,17 @@ def hit_frame(anchors: np.ndarray, ground_point, ground_normal, tol: float | Non
     return int(max(touching[0], 1)) if touching.size else int(anchors.shape[0] - 1)
 
 
-def twin_sequence(asset_dir, out, truth: dict, render_cfg=None, progress: bool = False) -> Path:
+def twin_sequence(
+    asset_dir, out, truth: dict, render_cfg=None, progress: bool = False, physics: dict | None = None
+) -> Path:
     """Simulate the asset in `asset_dir` with `truth`, render every camera and frame, write an
     sgdr-layout sequence to `out`; returns `out`. render_cfg: `RenderConfig` (default: its
-    defaults)."""
+    defaults). physics: `physics.*` settings that differ from the asset's, e.g. a model extension
+    ({"gravity_scale": 0.8}, `sgdr.physics.extensions`): an effect injected into the twin, which
+    changes the truth but not what the sequence records (its gravity and ground stay the
+    asset's; the effect is in gt/effects.json)."""
+    from dataclasses import replace
+
     from sgdr.data import write_sequence
     from sgdr.physics import Ground
     from sgdr.pipeline.asset import load_asset
@@ -63,6 +70,7 @@ def twin_sequence(asset_dir, out, truth: dict, render_cfg=None, progress: bool =
     from sgdr.render.config import RenderConfig
 
     asset = load_asset(asset_dir)
+    true_physics = replace(asset.physics, **(physics or {}))
     values = twin_values(asset, truth)
     model, binding = asset.build()
     params = physical_params(model, asset.physics, values)
@@ -76,7 +84,7 @@ def twin_sequence(asset_dir, out, truth: dict, render_cfg=None, progress: bool =
         asset.n_frames,
         asset.fps,
         asset.n_substeps,
-        asset.physics,
+        true_physics,
         asset.cameras,
         render_cfg or RenderConfig(),
         True,
@@ -103,5 +111,5 @@ def twin_sequence(asset_dir, out, truth: dict, render_cfg=None, progress: bool =
             "log10_k_mean": float(np.mean(values["log10_k"])),
             "n_substeps": int(pred.n_substeps),
         },
-        gt_effects={},
+        gt_effects={"physics": dict(physics or {}), "active": sorted(physics or {})},
     )

@@ -1,0 +1,66 @@
+"""What a finished reconstruction's simulation gets wrong: which model extension the data ask for.
+
+    python experiments/diagnose.py preset=small diagnose.run=outputs/torus_small_s0
+    python experiments/diagnose.py preset=tiny diagnose.run=outputs/torus_tiny_s0 diagnose.sequence=/tmp/twin
+
+Fits every candidate of diagnose.candidates (air drag, gravity's magnitude, the ground plane's
+height) from the run's identified physics on half the views and judges it on the other half
+(sgdr/discrepancy/, docs/discrepancy.md). Writes <run>/diagnose/diagnosis.json; the last line
+printed is one JSON object with "cause" and "candidates".
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import sgdr.backend  # noqa: E402
+import sgdr.config  # noqa: E402
+
+sgdr.config.register()
+
+
+@hydra.main(config_path="../conf", config_name="config", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    """A bad value or a missing run folder ends with one line `error: ...` (exit 2)."""
+    from sgdr.cli import user_errors
+
+    with user_errors():
+        try:
+            diagnose(cfg)
+        except FileNotFoundError as exc:
+            print(f"error: {exc}", file=sys.stderr, flush=True)
+            sys.exit(2)
+
+
+def diagnose(cfg: DictConfig) -> None:
+    sgdr.backend.init(cfg.backend, cfg.threads or None)
+    from sgdr.config import validate
+    from sgdr.discrepancy.run import run_diagnosis
+
+    logging.getLogger("sgdr").setLevel(logging.INFO)
+    c = OmegaConf.to_object(cfg)
+    validate(c)
+    record = run_diagnosis(c)
+    print(f"diagnosis: {record['file']}")
+    summary = {
+        "cause": record["cause"],
+        "candidates": {
+            n: {k: v[k] for k in ("value", "interval", "held_out_loss", "gain", "future_gain", "decision")}
+            for n, v in record["candidates"].items()
+        },
+        "base_held_out_loss": record["base"]["d_held_out"],
+        "seconds": round(record["seconds"], 1),
+    }
+    print(json.dumps(summary))
+
+
+if __name__ == "__main__":
+    main()

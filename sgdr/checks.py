@@ -85,6 +85,11 @@ def between(lo: float, hi: float, lo_open: bool = False, hi_open: bool = False) 
     return Check(ok, f"must lie in {'(' if lo_open else '['}{lo}, {hi}{')' if hi_open else ']'}")
 
 
+def or_none(check: Check, meaning_of_none: str) -> Check:
+    """`check`, or None (null in YAML) with the meaning `meaning_of_none`."""
+    return Check(lambda x: x is None or check.ok(x), lambda: f"{check.describe()}, or null ({meaning_of_none})")
+
+
 # ---------------------------------------------------------------------------- lists
 def vector(n: int, empty_ok: bool = False, each: Check | None = None) -> Check:
     """A list of n finite numbers (or empty when `empty_ok`), each passing `each` if given."""

@@ -22,8 +22,8 @@ def objects():
     return {name: build_object(name, SPACING, 1.0 / 96, 12.0, seed=0) for name in OBJECTS}
 
 
-def test_seven_watertight_textured_objects_inside_the_box(objects):
-    assert sorted(objects) == sorted(["torus", "cross", "cream", "apple", "paste", "chess", "banana"])
+def test_eight_watertight_textured_objects_inside_the_box(objects):
+    assert sorted(objects) == sorted(["torus", "cross", "cream", "apple", "paste", "chess", "banana", "torus_hetero"])
     for name, obj in objects.items():
         assert obj.mesh.is_watertight, name
         assert obj.mesh.volume > 0, name
@@ -168,7 +168,10 @@ def test_generated_sequence_is_complete_and_consistent(tiny_sequence):
             assert im[..., 3].sum() > 20
             assert np.all(im[..., :3][im[..., 3] == 0] == 0)
     params, effects = seq.gt_params(), seq.gt_effects()
-    assert params["object"] == "cross" and params["E"] == cfg.E and params["hit_frame"] == seq.hit_frame
+    own = OBJECTS["cross"].material
+    assert params["object"] == "cross" and params["hit_frame"] == seq.hit_frame
+    assert (params["E"], params["nu"], params["v0"]) == (own.E, own.nu, list(own.v0))
+    assert params["E_regions"] == [own.E, 3.0 * own.E]
     assert effects["stiff_ratio"] == 3.0 and effects["active"] == ["stiff_ratio"]
     E_scale = np.load(out / "gt" / "particle_E_scale.npy")
     assert set(np.unique(E_scale)) == {1.0, 3.0}

@@ -9,7 +9,9 @@ One pass over the fit frames f = 1 .. n_fit-1:
 
 θ = the learnable physical parameters of `PhysParams`: log10 k_i (per anchor), the soft
 vector κ, the ground friction, and with `physics.contact = coulomb` the restitution. v0
-(stage 4), ζ0, m0 and gravity stay fixed. The optimiser is Mitsuba's Adam with one learning
+(stage 4), ζ0, m0 and gravity stay fixed. The paper's ablations (Table 3) change θ:
+`recon.stiffness = global` optimises one log10 k broadcast to every anchor (`STIFFNESS`), and
+`physics.soft_vector = false` fixes η_j = 1 (the model's n_c = n_k) and leaves κ out of θ. The optimiser is Mitsuba's Adam with one learning
 rate per parameter (`recon.lr_*`); after every step log10 k_i is clipped to
 [recon.log10_k_min, recon.log10_k_max], friction to [0, recon.friction_max], restitution to
 [0, 1] (Adam's moments are kept).
@@ -80,10 +82,40 @@ class DynamicsResult:
 
 
 def learnable_names(physics_cfg) -> list[str]:
-    """PhysParams fields optimised by the dynamic stage: log10 k_i, κ and the contact's Θ(B)."""
+    """PhysParams fields optimised by the dynamic stage: log10 k_i, κ (unless
+    physics.soft_vector is off: then η = 1 and κ acts on nothing) and the contact's Θ(B)."""
     from sgdr.physics.laws import CONTACT_PARAMETERS
 
-    return ["log10_k", "kappa", *CONTACT_PARAMETERS.get_named(physics_cfg.contact)]
+    kappa = ["kappa"] if physics_cfg.soft_vector else []
+    return ["log10_k", *kappa, *CONTACT_PARAMETERS.get_named(physics_cfg.contact)]
+
+
+@dataclass(frozen=True)
+class StiffnessField:
+    """How the optimised stiffness variable maps to PhysParams.log10_k (`recon.stiffness`)."""
+
+    variable: Callable  # log10_k Float [N_A] -> the variable Adam optimises
+    field: Callable  # (the variable, N_A) -> log10_k Float [N_A]
+
+
+def _global_variable(log10_k):
+    """One log10 k, the mean of the start field (uniform at the start), Float [1], opaque."""
+    value = type(log10_k)(float(np.mean(to_numpy(dr.detach(log10_k)))))
+    dr.make_opaque(value)
+    return value
+
+
+# per_anchor: the paper's k_i; global: the single-k ablation (Table 3), one log10 k whose
+# gradient is the sum over the anchors (the broadcast's adjoint)
+STIFFNESS = Registry(
+    "stiffness parametrisation",
+    "recon.stiffness",
+    ValueError,
+    {
+        "per_anchor": StiffnessField(lambda log10_k: log10_k, lambda v, n: v),
+        "global": StiffnessField(_global_variable, lambda v, n: dr.zeros(type(v), n) + v),
+    },
+)
 
 
 def substeps_at(n_substeps: int, growth: list[float], it: int, iterations: int) -> int:
@@ -107,8 +139,11 @@ def clamp_to_ranges(opt, cfg: ReconConfig) -> None:
         opt["restitution"] = dr.clip(opt["restitution"], 0.0, 1.0)
 
 
-def _with_opt(params, opt):
-    return replace(params, **{k: opt[k] for k in opt.keys()})
+def _with_opt(params, opt, cfg: ReconConfig):
+    """`params` with the optimised fields of `opt`, the stiffness mapped by `recon.stiffness`."""
+    values = {k: opt[k] for k in opt.keys()}
+    values["log10_k"] = STIFFNESS[cfg.stiffness].field(values["log10_k"], dr.width(params.log10_k))
+    return replace(params, **values)
 
 
 def rollout_loss(
@@ -182,7 +217,7 @@ def pass_truncated(p: _Pass, opt, rng, n_t: int) -> tuple[list[float], int]:
     for f in range(1, len(p.targets)):
         views = rng.choice(len(p.cameras), size=p.per_frame, replace=False)
         while True:
-            params = _with_opt(p.base, opt)
+            params = _with_opt(p.base, opt, p.cfg)
             try:
                 new = simulate_frame(p.model, params, state, p.ground, p.dt, n_t, p.physics_cfg)
                 loss = _frame_loss(p.gaussians, p.binding, new.x, p.targets[f], p.cameras, views, p.render_cfg, p.lam)
@@ -216,7 +251,7 @@ def pass_full(p: _Pass, opt, rng, n_t: int) -> tuple[list[float], int]:
     substep remedy within the pass, so the pass's n_t is returned unchanged (module doc)."""
     from sgdr.physics import SimState, rollout
 
-    params = _with_opt(p.base, opt)
+    params = _with_opt(p.base, opt, p.cfg)
     states = rollout(
         p.model,
         params,
@@ -272,6 +307,7 @@ def fit_dynamics(
     from sgdr.physics import PhysParams
 
     train_pass = RECON_MODES.get_named(cfg.mode)
+    stiffness = STIFFNESS.get_named(cfg.stiffness)
     n_fit = len(targets)
     if n_fit < 2:
         raise ValueError(f"dynamic reconstruction needs at least 2 fit frames, the sequence has n_fit={n_fit}")
@@ -310,7 +346,9 @@ def fit_dynamics(
         log.info("dynamics: uniform log10 k grid %s -> start at %s", k_grid, best)
         base = replace(base, log10_k=dr.full(type(base.log10_k), float(best), model.n_anchors))
         dr.make_opaque(base.log10_k)
-    opt = make_adam({name: (getattr(base, name), _lr(cfg, name)) for name in learnable_names(physics_cfg)})
+    start_values = {name: getattr(base, name) for name in learnable_names(physics_cfg)}
+    start_values["log10_k"] = stiffness.variable(base.log10_k)
+    opt = make_adam({name: (value, _lr(cfg, name)) for name, value in start_values.items()})
     g = gaussians.detach()
     inputs = _Pass(
         model,
@@ -373,7 +411,7 @@ def fit_dynamics(
                 },
             )
 
-    final = _with_opt(base, opt).detach()
+    final = _with_opt(base, opt, cfg).detach()
     eval_final = rollout_loss(
         model, final, binding, g, v0, ground, targets, cameras, dt, n_t, physics_cfg, render_cfg, lam
     )

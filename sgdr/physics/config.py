@@ -22,6 +22,8 @@ class PhysicsConfig:
     soft_vector_normalised: bool = (
         True  # Eq. 15 exponent: (r - n_c)/(n_k - n_c), 0-based r (official) | j - n_c, 1-based j
     )
+    soft_vector: bool = True  # false: the ablation without soft vector: η_j = 1 for all n_k springs
+    #                           (the model's n_c = n_k, physics.n_c unused) and κ is not learned
     contact: str = "project"  # "project" (official, per-substep μ) | "coulomb" (restitution e, μ)
     rest_speed_factor: float = 2.0  # "coulomb": approach speeds below this x |g| dt are resting contact (no bounce)
     n_substeps: int = 100  # n_t, Euler substeps per frame (the dynamic stage scales it by recon.substep_growth)

@@ -123,7 +123,8 @@ def knn_springs(x_rest: np.ndarray, n_k: int, min_length: float) -> tuple[np.nda
 def build_spring_model(x_rest: np.ndarray, n_k: int, cfg: PhysicsConfig) -> SpringModel:
     """Springs from kNN at rest (Eqs. 5-7): x_rest [N_A, 3] world, scene units; n_k neighbours.
 
-    Masses are m_i = cfg.m0 (paper: m0 = 1)."""
+    Masses are m_i = cfg.m0 (paper: m0 = 1). With cfg.soft_vector false (the ablation without
+    soft vector) every spring has full weight: n_c = n_k, so η_j = 1 whatever κ (Eq. 15)."""
     t = ad()
     x_rest = _as_points("x_rest", x_rest)
     n = x_rest.shape[0]
@@ -147,7 +148,7 @@ def build_spring_model(x_rest: np.ndarray, n_k: int, cfg: PhysicsConfig) -> Spri
         in_spring=t.UInt32(in_spring.astype(np.uint32)),
         in_offset=t.UInt32(in_offset.astype(np.uint32)),
         n_k=int(n_k),
-        n_c=int(min(cfg.n_c, n_k)),
+        n_c=int(min(cfg.n_c, n_k)) if cfg.soft_vector else int(n_k),
         n_anchors=n,
     )
 

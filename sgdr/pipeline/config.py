@@ -80,6 +80,8 @@ class ReconConfig:
     log10_k_grid: list[float] = field(default_factory=list)  # uniform log10 k values scored by the
     #   deterministic all-view rollout loss before training; the best one replaces
     #   physics.log10_k_init as the start (empty = start at physics.log10_k_init)
+    stiffness: str = "per_anchor"  # what the dynamic stage optimises for log10 k: "per_anchor" (one k_i
+    #   per anchor, the paper's) | "global" (the single-k ablation: one log10 k shared by every anchor)
     log10_k_min: float = 0.0  # log10 k_i is clamped to [min, max] after each step
     log10_k_max: float = 7.0
     friction_max: float = 1.0  # friction clamped to [0, friction_max] after each step
@@ -139,6 +141,7 @@ CHECKS = {
     "v0_lambda_dssim": between(0.0, 1.0),
     "v0_views_per_step": non_negative("0: every view"),
     "log10_k_grid": list_of(finite()),
+    "stiffness": choice("sgdr.identify.dynamics:STIFFNESS"),
     "log10_k_min": finite(),
     "log10_k_max": finite(),
     "friction_max": non_negative(),

@@ -140,6 +140,7 @@ RECON_STAGE_FIELDS = {
         "lr_restitution",
         "mode",
         "log10_k_grid",
+        "stiffness",
         "log10_k_min",
         "log10_k_max",
         "friction_max",

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from sgdr.checks import any_text, at_least, between, choice, finite, non_negative, positive, vector
+from sgdr.checks import any_text, at_least, between, choice, finite, non_negative, or_none, positive, vector
+
+OWN = "the object's own, sgdr.synth.objects"
 
 
 @dataclass
@@ -18,14 +20,16 @@ class EffectsConfig:
 
     plastic_yield: float = 0.0  # von Mises yield stress on the Hencky Kirchhoff stress, Pa; 0 = elastic
     air_drag: float = 0.0  # linear air drag rate c (dv/dt = -c v), 1/s; 0 = none
-    stiff_ratio: float = 1.0  # E of the second region / E of the first; 1 = homogeneous
-    stiff_axis: int = 0  # world axis (0 x, 1 y, 2 z) whose upper half of the object is region 2
+    stiff_ratio: float | None = None  # E of the second region / E of the first; 1 = homogeneous;
+    #                                   null = the object's own (1 but for torus_hetero)
+    stiff_axis: int | None = None  # world axis (0 x, 1 y, 2 z) whose upper half of the object is region 2;
+    #                                null = the object's own
     gravity: float = 9.8  # magnitude of gravity, scene units / s² (direction -z)
 
 
 @dataclass
 class SynthConfig:
-    object: str = "torus"  # torus | cross | cream | apple | paste | chess | banana
+    object: str = "torus"  # torus | cross | cream | apple | paste | chess | banana | torus_hetero
     resolution: int = 128  # image width = height, pixels
     n_views: int = 10  # cameras on the upper hemisphere
     n_frames: int = 30  # frames rendered
@@ -34,8 +38,8 @@ class SynthConfig:
     spp: int = 64  # Mitsuba samples per pixel
     mpm_grid: int = 64  # MPM grid cells per scene unit (the grid spans a unit cube)
     particles_per_cell: int = 8  # MPM particle sampling density
-    E: float = 2.0e4  # Young's modulus, Pa
-    nu: float = 0.3  # Poisson ratio
+    E: float | None = None  # Young's modulus, Pa; null = the object's own (docs/benchmark-objects.md)
+    nu: float | None = None  # Poisson ratio; null = the object's own
     density: float = 1.0e3  # kg / scene unit³
     ground: str = "friction"  # MPM collider: sticky | slip | friction
     ground_friction: float = 0.5  # Coulomb μ for the "friction" collider
@@ -46,7 +50,7 @@ class SynthConfig:
     cfl: float = 0.3  # time step = cfl * dx / (elastic wave speed + max particle speed bound)
     substeps: int = 0  # MPM substeps per frame; 0 = the fewest the CFL bound allows
     hit_frame: int = 5  # the object first touches the ground during this frame
-    v0: list = field(default_factory=lambda: [0.15, 0.05, -0.5])  # initial velocity, units/s
+    v0: list | None = None  # initial velocity [3], units/s; null = the object's own
     wall_cells: int = 3  # grid cells at each side of the MPM domain acting as slip walls
     # --- surface and appearance
     surface_sigma: float = 0.6  # Gaussian kernel of the particle density, in surface cells
@@ -63,7 +67,7 @@ class SynthConfig:
     light_height: float = 2.0  # area light height above the target
     max_depth: int = 4  # path tracer maximum path depth
     # --- output
-    out: str = ""  # sequence folder; "" = <data_dir>/<object>; object "all" = the seven objects
+    out: str = ""  # sequence folder; "" = <data_dir>/<object>; object "all" = the eight objects
     overwrite: bool = False  # regenerate sequences that are already complete
 
 
@@ -71,8 +75,8 @@ class SynthConfig:
 EFFECTS_CHECKS = {
     "plastic_yield": non_negative("0: elastic"),
     "air_drag": non_negative("0: none"),
-    "stiff_ratio": positive(),
-    "stiff_axis": choice((0, 1, 2)),
+    "stiff_ratio": or_none(positive(), OWN),
+    "stiff_axis": or_none(choice((0, 1, 2)), OWN),
     "gravity": positive(),
 }
 CHECKS = {
@@ -85,8 +89,8 @@ CHECKS = {
     "spp": at_least(1),
     "mpm_grid": at_least(8),
     "particles_per_cell": at_least(1),
-    "E": positive(),
-    "nu": between(0.0, 0.5, hi_open=True),
+    "E": or_none(positive(), OWN),
+    "nu": or_none(between(0.0, 0.5, hi_open=True), OWN),
     "density": positive(),
     "ground": choice("sgdr.synth.mpm:COLLIDERS"),
     "ground_friction": non_negative(),
@@ -95,7 +99,7 @@ CHECKS = {
     "cfl": between(0.0, 1.0, lo_open=True),
     "substeps": non_negative("0: the fewest the CFL bound allows"),
     "hit_frame": at_least(1),
-    "v0": vector(3),
+    "v0": or_none(vector(3), OWN),
     "wall_cells": at_least(1),
     "surface_sigma": positive(),
     "surface_level": positive(),

@@ -4,8 +4,12 @@
 ground truth under `gt/`:
 - `particles_<fff>.npy` ([P, 3] world positions per frame), `particle_colours.npy` (rest
   colours), `mesh_rest.ply` (the watertight reference mesh);
-- `params.json`: material (E, ν, density, law), v0, gravity, ground, collider, MPM grid and
-  time step, hit frame and time, seed, timings; `effects.json`: the injected effects.
+- `params.json`: material (E, ν, density, law; `E_regions`: the E of each stiffness region and
+  how the regions are split), v0, gravity, ground, collider, MPM grid and time step, hit frame
+  and time, seed, timings; `effects.json`: the injected effects.
+
+The material and v0 are the object's own (`sgdr.synth.objects`, `Material`) unless
+`synth.E / nu / v0 / effects.stiff_ratio / effects.stiff_axis` are set (`with_object_material`).
 
 Scene layout (all recorded in `sequence.json`): the object starts inside [0.3, 0.7]^3 moving
 with v0; the ground plane (normal +z) is placed so that the object's lowest particle reaches the height at
@@ -21,6 +25,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -35,10 +40,62 @@ CONTACT_LEAD = 0.8  # planned contact time = (hit_frame - CONTACT_LEAD) / fps
 HIT_TOLERANCE = 1e-3  # centre-of-mass deviation from free fall that marks the hit, scene units
 
 
+def with_object_material(cfg: SynthConfig) -> SynthConfig:
+    """`cfg` with every material setting left null (E, ν, v0, effects.stiff_ratio,
+    effects.stiff_axis) replaced by the object's own (`sgdr.synth.objects.Material`); values set
+    in the config win."""
+    from sgdr.synth.objects import OBJECTS
+
+    m = OBJECTS.get_named(cfg.object).material
+    e = cfg.effects
+    effects = replace(
+        e,
+        stiff_ratio=float(m.stiff_ratio if e.stiff_ratio is None else e.stiff_ratio),
+        stiff_axis=int(m.stiff_axis if e.stiff_axis is None else e.stiff_axis),
+    )
+    return replace(
+        cfg,
+        E=float(m.E if cfg.E is None else cfg.E),
+        nu=float(m.nu if cfg.nu is None else cfg.nu),
+        v0=[float(c) for c in (m.v0 if cfg.v0 is None else cfg.v0)],
+        effects=effects,
+    )
+
+
+def material_record(cfg: SynthConfig) -> dict:
+    """The material of the generated object (cfg resolved by `with_object_material`): E, ν,
+    density, law, and the E of every stiffness region with the rule that splits them."""
+    from sgdr.synth.objects import OBJECTS
+
+    e = cfg.effects
+    own = OBJECTS.get_named(cfg.object).material
+    regions = [float(cfg.E)] if e.stiff_ratio == 1.0 else [float(cfg.E), float(cfg.E * e.stiff_ratio)]
+    return {
+        "material": cfg.material,
+        "E": float(cfg.E),
+        "nu": float(cfg.nu),
+        "density": float(cfg.density),
+        "E_regions": regions,
+        "region_rule": "one region"
+        if len(regions) == 1
+        else f"region 2: particles above the median of world axis {e.stiff_axis} (gt/particle_E_scale.npy)",
+        "material_source": {
+            "E": "object" if cfg.E == own.E else "config",
+            "nu": "object" if cfg.nu == own.nu else "config",
+            "v0": "object" if tuple(cfg.v0) == tuple(own.v0) else "config",
+        },
+    }
+
+
 def effects_record(cfg: SynthConfig) -> dict:
-    """The injected effects with their magnitudes, and which differ from the plain benchmark."""
+    """The injected effects with their magnitudes, and which differ from the plain benchmark
+    (the object's own heterogeneity, torus_hetero's, is not an injected effect)."""
+    from sgdr.synth.objects import OBJECTS
+
+    cfg = with_object_material(cfg)
     e = cfg.effects
     base = SynthConfig()
+    own = OBJECTS.get_named(cfg.object).material
     record = {
         "plastic_yield": float(e.plastic_yield),
         "air_drag": float(e.air_drag),
@@ -48,9 +105,9 @@ def effects_record(cfg: SynthConfig) -> dict:
         "ground": str(cfg.ground),
         "ground_friction": float(cfg.ground_friction),
     }
-    active = [
-        k for k in ("plastic_yield", "air_drag", "stiff_ratio", "gravity") if record[k] != getattr(base.effects, k)
-    ]
+    active = [k for k in ("plastic_yield", "air_drag", "gravity") if record[k] != getattr(base.effects, k)]
+    if (e.stiff_ratio, e.stiff_axis) != (own.stiff_ratio, own.stiff_axis) and e.stiff_ratio != 1.0:
+        active.insert(2, "stiff_ratio")
     if cfg.ground != base.ground:
         active.append("ground")
     record["active"] = active
@@ -108,6 +165,7 @@ def simulate_drop(obj, cfg: SynthConfig, progress=None):
     """Run the MPM drop of a built object; returns (frames [F, P, 3], info dict)."""
     from sgdr.synth import mpm
 
+    cfg = with_object_material(cfg)
     dx = 1.0 / cfg.mpm_grid
     ground_point, g, origin, t_contact = plan_scene(obj.particles, cfg, dx)
     e = cfg.effects
@@ -219,7 +277,7 @@ def generate_sequence(cfg: SynthConfig, out_dir, seed: int, progress: bool = Fal
     from sgdr.synth.objects import build_object
     from sgdr.synth.render_gt import render_views, sensor_dict, surface_mesh
 
-    cfg = as_synth_config(cfg)
+    cfg = with_object_material(as_synth_config(cfg))
     out_dir = Path(out_dir)
     timings = {}
     t0 = time.perf_counter()
@@ -256,10 +314,7 @@ def generate_sequence(cfg: SynthConfig, out_dir, seed: int, progress: bool = Fal
     params = {
         "object": cfg.object,
         "seed": int(seed),
-        "material": cfg.material,
-        "E": float(cfg.E),
-        "nu": float(cfg.nu),
-        "density": float(cfg.density),
+        **material_record(cfg),
         "v0": [float(c) for c in cfg.v0],
         "gravity": info["gravity"].tolist(),
         "ground": {"point": info["ground_point"].tolist(), "normal": GROUND_NORMAL.tolist()},

@@ -1,4 +1,10 @@
-"""The seven benchmark objects, built procedurally (no downloads).
+"""The eight benchmark objects, built procedurally (no downloads), each with its own material.
+
+The seven of the main table (torus cross cream apple paste chess banana) and `torus_hetero`,
+the heterogeneous object of the paper's ablation (Table 3, Fig. 9): the torus's shape with two
+halves of distinct stiffness. Every object carries its own `Material` (E, ν, v0 and, for the
+heterogeneous one, the stiffness ratio of its second region), used by the generator unless
+`synth.E / nu / v0 / effects.stiff_ratio / effects.stiff_axis` are set (docs/benchmark-objects.md).
 
 Each object is a signed distance function (SDF, NumPy, negative inside) made of smooth unions
 of primitives, in a local frame centred at the origin (z up, scene units). `build_object`
@@ -147,11 +153,29 @@ def sdf_banana(p):
 
 
 @dataclass(frozen=True)
+class Material:
+    """An object's own material and throw for the MPM ground truth.
+
+    E spans 5e3 .. 1e5 Pa over the seven (20x, "various stiffness levels" as the paper's
+    benchmark); the stiffest sets the MPM substeps (sgdr.synth.mpm.cfl_substeps), measured in
+    docs/benchmark-objects.md. Region 2 (E x stiff_ratio) is the upper half of the object along
+    world axis stiff_axis, split at the particles' median (sgdr.synth.generate.simulate_drop).
+    """
+
+    E: float  # Young's modulus of region 1 (all of a homogeneous object), Pa
+    nu: float  # Poisson ratio
+    v0: tuple  # (3,) initial velocity, scene units / s
+    stiff_ratio: float = 1.0  # E of region 2 / E of region 1 (1 = homogeneous)
+    stiff_axis: int = 0  # world axis (0 x, 1 y, 2 z) whose upper half is region 2
+
+
+@dataclass(frozen=True)
 class ObjectSpec:
     sdf: object  # callable [N, 3] local -> [N] signed distance
     tilt_axis: tuple  # rotation applied before placement (breaks symmetry)
     tilt_deg: float
     colours: tuple  # two linear RGB colours of the pattern
+    material: Material  # the object's own material and initial velocity
 
 
 OBJECTS = Registry(
@@ -159,13 +183,36 @@ OBJECTS = Registry(
     "synth.object",
     ObjectError,
     {
-        "torus": ObjectSpec(sdf_torus, (1, 0, 0), 25.0, ((0.8, 0.35, 0.1), (0.95, 0.85, 0.3))),
-        "cross": ObjectSpec(sdf_cross, (1, 1, 0), 20.0, ((0.15, 0.35, 0.8), (0.9, 0.9, 0.9))),
-        "cream": ObjectSpec(sdf_cream, (0, 1, 0), 10.0, ((0.95, 0.9, 0.75), (0.55, 0.3, 0.15))),
-        "apple": ObjectSpec(sdf_apple, (1, 0, 0), 15.0, ((0.75, 0.08, 0.06), (0.85, 0.75, 0.2))),
-        "paste": ObjectSpec(sdf_paste, (0, 0, 1), 30.0, ((0.9, 0.9, 0.95), (0.1, 0.4, 0.75))),
-        "chess": ObjectSpec(sdf_chess, (1, 0, 0), 0.0, ((0.1, 0.1, 0.12), (0.85, 0.8, 0.7))),
-        "banana": ObjectSpec(sdf_banana, (1, 0, 0), 15.0, ((0.9, 0.8, 0.15), (0.35, 0.25, 0.05))),
+        # the torus keeps the material all objects shared before (the demo's measured results)
+        "torus": ObjectSpec(
+            sdf_torus, (1, 0, 0), 25.0, ((0.8, 0.35, 0.1), (0.95, 0.85, 0.3)), Material(2.0e4, 0.3, (0.15, 0.05, -0.5))
+        ),
+        "cross": ObjectSpec(
+            sdf_cross, (1, 1, 0), 20.0, ((0.15, 0.35, 0.8), (0.9, 0.9, 0.9)), Material(5.0e3, 0.35, (-0.1, 0.1, -0.3))
+        ),
+        "cream": ObjectSpec(
+            sdf_cream, (0, 1, 0), 10.0, ((0.95, 0.9, 0.75), (0.55, 0.3, 0.15)), Material(8.0e3, 0.4, (0.05, -0.1, -0.4))
+        ),
+        "apple": ObjectSpec(
+            sdf_apple, (1, 0, 0), 15.0, ((0.75, 0.08, 0.06), (0.85, 0.75, 0.2)), Material(1.0e5, 0.25, (0.1, 0.0, -0.7))
+        ),
+        "paste": ObjectSpec(
+            sdf_paste, (0, 0, 1), 30.0, ((0.9, 0.9, 0.95), (0.1, 0.4, 0.75)), Material(1.2e4, 0.4, (0.0, 0.15, -0.5))
+        ),
+        "chess": ObjectSpec(
+            sdf_chess, (1, 0, 0), 0.0, ((0.1, 0.1, 0.12), (0.85, 0.8, 0.7)), Material(6.0e4, 0.2, (-0.15, 0.0, -0.6))
+        ),
+        "banana": ObjectSpec(
+            sdf_banana, (1, 0, 0), 15.0, ((0.9, 0.8, 0.15), (0.35, 0.25, 0.05)), Material(3.5e4, 0.3, (0.1, 0.1, -0.2))
+        ),
+        # the ablation's heterogeneous object: the torus, its +x half 5x stiffer than its -x half
+        "torus_hetero": ObjectSpec(
+            sdf_torus,
+            (1, 0, 0),
+            25.0,
+            ((0.25, 0.6, 0.3), (0.9, 0.85, 0.6)),
+            Material(1.0e4, 0.3, (0.15, 0.05, -0.5), stiff_ratio=5.0, stiff_axis=0),
+        ),
     },
 )
 

@@ -27,7 +27,7 @@ test:
 bench:
 	$(PYTHON) -m evaluation.bench $(BENCH)
 
-# The 7-object benchmark at the small preset (128x128, 10 views, 30 frames) into data/;
+# The 8-object benchmark (docs/benchmark-objects.md) at the small preset (128x128, 10 views, 30 frames) into data/;
 # complete sequences are skipped.
 data:
 	$(PYTHON) experiments/generate.py preset=$(PRESET) synth.object=all data_dir=data

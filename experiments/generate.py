@@ -1,7 +1,7 @@
 """Generate benchmark sequences (MPM drop + Mitsuba ground truth) into sgdr's sequence format.
 
     python experiments/generate.py synth.object=torus preset=small seed=0
-    python experiments/generate.py synth.object=all preset=small          # the seven objects
+    python experiments/generate.py synth.object=all preset=small          # the eight objects (docs/benchmark-objects.md)
     python experiments/generate.py synth.object=apple synth.effects.plastic_yield=1500 \
         synth.out=data/apple_plastic
 

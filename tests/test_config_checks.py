@@ -119,10 +119,14 @@ def test_every_config_registry_is_checked_against_itself():
     registries = _config_registries()
     assert {"physics.contact", "recon.mode", "anchors.sampler", "synth.object"} <= set(registries)
     for setting, registry in registries.items():
+        obj = Config()
+        for part in setting.split("."):
+            obj = getattr(obj, part)
+        form = "[{}]" if isinstance(obj, list) else "{}"  # a list-valued setting names its choices in a list
         for name in registry:
-            validate(_cfg(f"{setting}={name}"))
+            validate(_cfg(f"{setting}={form.format(name)}"))
         with pytest.raises(ConfigError, match=setting.replace(".", r"\.")):
-            validate(_cfg(f"{setting}=not_a_{registry.what.replace(' ', '_')}"))
+            validate(_cfg(f"{setting}={form.format('not_a_' + registry.what.replace(' ', '_'))}"))
 
 
 # ---------------------------------------------------------------------------- the sequence

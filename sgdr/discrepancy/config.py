@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from sgdr.checks import Check, any_text, at_least, between
+from sgdr.checks import any_text, at_least, between, choice, list_of
 
 
 @dataclass
@@ -17,23 +17,14 @@ class DiagnoseConfig:
     n_mask_points: int = 100  # silhouette pixels sampled per view-frame (the coverage term)
     frame_stride: int = 1  # every frame_stride-th fit frame after frame 0
     evaluations: int = 16  # rollouts of the bounded 1-D search per candidate
-    min_gain: float = 0.3  # held-out gain 1 - D_candidate / D_base needed to name a cause (docs/discrepancy.md)
-
-
-def _candidates() -> Check:
-    def ok(v):
-        from sgdr.discrepancy.candidates import CANDIDATES
-
-        return isinstance(v, (list, tuple)) and len(v) > 0 and all(c in CANDIDATES for c in v)
-
-    return Check(ok, "must be a non-empty list of names from sgdr.discrepancy.candidates:CANDIDATES")
+    min_gain: float = 0.1  # held-out gain 1 - D_candidate / D_base needed to name a cause (docs/discrepancy.md)
 
 
 CHECKS = {
     "run": any_text("a finished run folder"),
     "sequence": any_text("empty: the run's own sequence"),
     "out_dir": any_text("empty: <run>/diagnose"),
-    "candidates": _candidates(),
+    "candidates": list_of(choice("sgdr.discrepancy.candidates:CANDIDATES"), min_len=1),
     "n_points": at_least(8),
     "n_mask_points": at_least(8),
     "frame_stride": at_least(1),

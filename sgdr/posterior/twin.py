@@ -111,5 +111,5 @@ def twin_sequence(
             "log10_k_mean": float(np.mean(values["log10_k"])),
             "n_substeps": int(pred.n_substeps),
         },
-        gt_effects={"physics": dict(physics or {}), "active": sorted(physics or {})},
+        gt_effects={"physics": dict(physics), "active": sorted(physics)} if physics else {},
     )

@@ -24,7 +24,9 @@ class EffectsConfig:
     #                                   null = the object's own (1 but for torus_hetero)
     stiff_axis: int | None = None  # world axis (0 x, 1 y, 2 z) whose upper half of the object is region 2;
     #                                null = the object's own
-    gravity: float = 9.8  # magnitude of gravity, scene units / s² (direction -z)
+    gravity: float = 9.8  # magnitude of gravity, scene units / s² (direction -z); the sequence records 9.8
+    ground_offset: float = 0.0  # the true ground lies this far above the recorded one (scene units); 0 = none
+    ground_tilt_deg: float = 0.0  # the true ground's normal is tilted by this angle about the world x axis; 0 = none
 
 
 @dataclass
@@ -78,6 +80,8 @@ EFFECTS_CHECKS = {
     "stiff_ratio": or_none(positive(), OWN),
     "stiff_axis": or_none(choice((0, 1, 2)), OWN),
     "gravity": positive(),
+    "ground_offset": finite(),
+    "ground_tilt_deg": between(-30.0, 30.0),
 }
 CHECKS = {
     "object": choice("sgdr.synth.objects:OBJECTS", also=("all",)),

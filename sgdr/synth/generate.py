@@ -11,7 +11,11 @@ ground truth under `gt/`:
 The material and v0 are the object's own (`sgdr.synth.objects`, `Material`) unless
 `synth.E / nu / v0 / effects.stiff_ratio / effects.stiff_axis` are set (`with_object_material`).
 
-Scene layout (all recorded in `sequence.json`): the object starts inside [0.3, 0.7]^3 moving
+Injected effects change the truth, never what the sequence records: `sequence.json` always holds
+the nominal scene (gravity 9.8 along -z, the planned ground), `gt/effects.json` the effects and
+the true gravity and ground (`effects.gravity`, `effects.ground_offset`, `effects.ground_tilt_deg`).
+
+Scene layout (recorded in `sequence.json`): the object starts inside [0.3, 0.7]^3 moving
 with v0; the ground plane (normal +z) is placed so that the object's lowest particle reaches the height at
 which the MPM collider acts (1.5 Δx above the plane) CONTACT_LEAD frames before `synth.hit_frame`;
 the recorded `hit_frame` is the first frame whose centre of mass leaves the discrete free
@@ -35,6 +39,7 @@ from sgdr.synth.config import SynthConfig
 log = logging.getLogger(__name__)
 
 GROUND_NORMAL = np.array([0.0, 0.0, 1.0])
+NOMINAL_GRAVITY = np.array([0.0, 0.0, -9.8])  # what every sequence records, whatever effects.gravity is
 CONTACT_CELLS = 1.5  # particle height above the plane (in Δx) at which contact starts
 CONTACT_LEAD = 0.8  # planned contact time = (hit_frame - CONTACT_LEAD) / fps
 HIT_TOLERANCE = 1e-3  # centre-of-mass deviation from free fall that marks the hit, scene units
@@ -102,10 +107,16 @@ def effects_record(cfg: SynthConfig) -> dict:
         "stiff_ratio": float(e.stiff_ratio),
         "stiff_axis": int(e.stiff_axis),
         "gravity": float(e.gravity),
+        "ground_offset": float(e.ground_offset),
+        "ground_tilt_deg": float(e.ground_tilt_deg),
         "ground": str(cfg.ground),
         "ground_friction": float(cfg.ground_friction),
     }
-    active = [k for k in ("plastic_yield", "air_drag", "gravity") if record[k] != getattr(base.effects, k)]
+    active = [
+        k
+        for k in ("plastic_yield", "air_drag", "gravity", "ground_offset", "ground_tilt_deg")
+        if record[k] != getattr(base.effects, k)
+    ]
     if (e.stiff_ratio, e.stiff_axis) != (own.stiff_ratio, own.stiff_axis) and e.stiff_ratio != 1.0:
         active.insert(2, "stiff_ratio")
     if cfg.ground != base.ground:
@@ -136,11 +147,23 @@ def free_flight(x0, v0, g, drag, dt, substeps, n_frames) -> np.ndarray:
     return np.array(out)
 
 
+def true_ground(ground_point: np.ndarray, cfg: SynthConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(point, unit normal) of the ground the MPM collides with: the recorded (planned) plane
+    raised by `effects.ground_offset` and tilted by `effects.ground_tilt_deg` about the world x
+    axis through that point. Without those effects, the recorded plane."""
+    e = cfg.effects
+    theta = np.radians(float(e.ground_tilt_deg))
+    normal = np.array([0.0, -np.sin(theta), np.cos(theta)])  # GROUND_NORMAL rotated about +x
+    return np.asarray(ground_point, float) + float(e.ground_offset) * GROUND_NORMAL, normal
+
+
 def plan_scene(particles: np.ndarray, cfg: SynthConfig, dx: float):
     """Ground point, gravity vector and MPM grid origin for the drop (module docstring).
 
     Contact starts when a particle's B-spline stencil reaches the collider band, i.e. when the
-    lowest particle is 1.5 Δx above the plane; the plane lies on a grid node layer.
+    lowest particle is 1.5 Δx above the plane; the plane lies on a grid node layer. The grid's
+    floor lies (wall_cells + 1) cells under the lowest point of the true ground (`true_ground`)
+    inside the grid's footprint, so a tilted or lowered ground stays inside the domain.
     """
     g = np.array([0.0, 0.0, -float(cfg.effects.gravity)])
     v0 = np.asarray(cfg.v0, dtype=np.float64)
@@ -150,7 +173,12 @@ def plan_scene(particles: np.ndarray, cfg: SynthConfig, dx: float):
     ground_point = np.array([0.5, 0.5, ground_z])
     duration = (cfg.n_frames - 1) / cfg.fps
     centre = particles.mean(0) + 0.5 * v0 * duration
-    origin = np.array([centre[0] - 0.5, centre[1] - 0.5, ground_z - (cfg.wall_cells + 1) * dx])
+    point, normal = true_ground(ground_point, cfg)
+    corners = np.array([[centre[0] + sx, centre[1] + sy] for sx in (-0.5, 0.5) for sy in (-0.5, 0.5)])
+    # the true plane's height at the footprint's corners: n . (X - p) = 0 solved for z
+    heights = point[2] - ((corners - point[:2]) @ normal[:2]) / normal[2]
+    floor = min(ground_z, float(heights.min()))
+    origin = np.array([centre[0] - 0.5, centre[1] - 0.5, floor - (cfg.wall_cells + 1) * dx])
     return ground_point, g, origin, t_contact
 
 
@@ -190,8 +218,8 @@ def simulate_drop(obj, cfg: SynthConfig, progress=None):
         material=cfg.material,
         collider=cfg.ground,
         friction=cfg.ground_friction,
-        ground_point=ground_point,
-        ground_normal=GROUND_NORMAL,
+        ground_point=true_ground(ground_point, cfg)[0],
+        ground_normal=true_ground(ground_point, cfg)[1],
         wall_cells=cfg.wall_cells,
         E_scale=E_scale,
         plastic=e.plastic_yield > 0,
@@ -316,8 +344,13 @@ def generate_sequence(cfg: SynthConfig, out_dir, seed: int, progress: bool = Fal
         "seed": int(seed),
         **material_record(cfg),
         "v0": [float(c) for c in cfg.v0],
+        # the truth (what the MPM used); the sequence records the nominal scene (`recorded`)
         "gravity": info["gravity"].tolist(),
-        "ground": {"point": info["ground_point"].tolist(), "normal": GROUND_NORMAL.tolist()},
+        "ground": {k: v.tolist() for k, v in zip(("point", "normal"), true_ground(info["ground_point"], cfg))},
+        "recorded": {
+            "gravity": NOMINAL_GRAVITY.tolist(),
+            "ground": {"point": info["ground_point"].tolist(), "normal": GROUND_NORMAL.tolist()},
+        },
         "collider": cfg.ground,
         "ground_friction": float(cfg.ground_friction),
         "n_particles": int(len(obj.particles)),
@@ -340,10 +373,10 @@ def generate_sequence(cfg: SynthConfig, out_dir, seed: int, progress: bool = Fal
         hit_frame=info["hit_frame"],
         ground_point=info["ground_point"],
         ground_normal=GROUND_NORMAL,
-        gravity=info["gravity"],
+        gravity=NOMINAL_GRAVITY,  # an injected effect changes the truth, never what the sequence records
         gt_particles=list(frames),
         gt_params=params,
-        gt_effects=effects_record(cfg),
+        gt_effects=effects_record(cfg) | {"truth": {"gravity": params["gravity"], "ground": params["ground"]}},
     )
     gt = out_dir / "gt"
     np.save(gt / "particle_colours.npy", obj.colours.astype(np.float32))

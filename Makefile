@@ -4,7 +4,7 @@ PYTHON ?= $(shell [ -x .venv/bin/python ] && echo .venv/bin/python || echo pytho
 BENCH ?=
 PRESET ?= small
 
-.PHONY: setup test test-all bench data demo reproduce oracle posterior clean help
+.PHONY: setup test test-all bench data demo reproduce oracle posterior diagnose clean help
 
 help:
 	@echo "make setup      install libLLVM + sgdr with pinned dependencies (idempotent)"
@@ -15,6 +15,7 @@ help:
 	@echo "make reproduce  the seven-object table (docs/reconstruction-results.md): every object at the small preset, then the table"
 	@echo "make oracle     the spring-mass model fitted to the torus's ground-truth particle tracks (OBJECT=...)"
 	@echo "make posterior  emcee posterior of a finished run's physics (RUN=outputs/torus_small_s0, SEQUENCE= a twin)"
+	@echo "make diagnose   which model extension a finished run's data ask for (RUN=, SEQUENCE=)"
 
 setup:
 	bash scripts/setup.sh
@@ -65,6 +66,12 @@ SEQUENCE ?=
 posterior:
 	$(PYTHON) experiments/posterior.py preset=$(PRESET) method=$(METHOD) posterior.run=$(RUN) \
 		$(if $(SEQUENCE),posterior.sequence=$(SEQUENCE),)
+
+# Which model extension a finished run's data ask for (docs/discrepancy.md): air drag, gravity's
+# magnitude, the ground's height, fitted on half the views and judged on the other half.
+diagnose:
+	$(PYTHON) experiments/diagnose.py preset=$(PRESET) method=$(METHOD) diagnose.run=$(RUN) \
+		$(if $(SEQUENCE),diagnose.sequence=$(SEQUENCE),)
 
 clean:
 	rm -rf outputs multirun .pytest_cache

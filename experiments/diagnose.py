@@ -32,12 +32,8 @@ def main(cfg: DictConfig) -> None:
     """A bad value or a missing run folder ends with one line `error: ...` (exit 2)."""
     from sgdr.cli import user_errors
 
-    with user_errors():
-        try:
-            diagnose(cfg)
-        except FileNotFoundError as exc:
-            print(f"error: {exc}", file=sys.stderr, flush=True)
-            sys.exit(2)
+    with user_errors(FileNotFoundError):
+        diagnose(cfg)
 
 
 def diagnose(cfg: DictConfig) -> None:

@@ -35,12 +35,8 @@ def main(cfg: DictConfig) -> None:
     """A bad value or a missing run folder ends with one line `error: ...` (exit 2)."""
     from sgdr.cli import user_errors
 
-    with user_errors():
-        try:
-            posterior(cfg)
-        except FileNotFoundError as exc:
-            print(f"error: {exc}", file=sys.stderr, flush=True)
-            sys.exit(2)
+    with user_errors(FileNotFoundError):
+        posterior(cfg)
 
 
 def posterior(cfg: DictConfig) -> None:

@@ -30,7 +30,9 @@ def input_errors() -> tuple[type[Exception], ...]:
 
 
 @contextmanager
-def user_errors():
+def user_errors(*extra: type[Exception]):
+    """`extra`: further exception types the driver reports as input errors (e.g. FileNotFoundError
+    for a driver whose input is a run folder)."""
     try:
         yield
     except KeyboardInterrupt:
@@ -42,7 +44,7 @@ def user_errors():
         if isinstance(exc, RunInterrupted):
             print(str(exc), file=sys.stderr, flush=True)
             sys.exit(130)
-        if isinstance(exc, input_errors()):
+        if isinstance(exc, (*input_errors(), *extra)):
             print(f"error: {exc}", file=sys.stderr, flush=True)
             sys.exit(2)
         raise

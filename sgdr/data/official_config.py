@@ -172,7 +172,7 @@ _OPS = {
 
 
 class _NotLiteral(Exception):
-    pass
+    """An expression that is not a literal (e.g. `MPMSimulator.elasticity`): its keyword is skipped."""
 
 
 def _literal(node):

@@ -168,6 +168,8 @@ def read_static_scan(static_dir: Path, obj: str) -> Sequence:
 
 
 def read_real_capture(root: Path, scene_file=None, **overrides) -> Sequence:
+    import cv2
+
     root = Path(root)
     config = find_config(root, scene_file)
     cfg = read_spring_gaus_yaml(config)
@@ -217,8 +219,6 @@ def read_real_capture(root: Path, scene_file=None, **overrides) -> Sequence:
                 name,
                 dist.tolist(),
             )
-        import cv2
-
         R, _ = cv2.Rodrigues(rvec)
         try:
             cameras.append(Camera(K, R, tvec, width, height, name))
@@ -247,8 +247,7 @@ def read_real_capture(root: Path, scene_file=None, **overrides) -> Sequence:
                 view_paths.append(image)
                 continue
             if not mask.is_file():
-                fail(mask, f"{name}[{f}]", f"mask of the video frame is missing (and no background plate {plate.name} "
-                     "to matte the frames against)" if not plate.is_file() else "mask of the video frame is missing")
+                fail(mask, f"{name}[{f}]", "mask of the video frame is missing")
             if not image.is_file():
                 if not checks.get("img_is_mask"):
                     fail(

@@ -79,7 +79,7 @@ class Sequence:
     backgrounds: list[Path | None] | None = field(repr=False, default=None)  # [view] clean plates to matte against
     mask_only: bool = False  # the targets are the masks themselves (RGB = mask; Spring-Gaus IMG_IS_MASK)
     resize: bool = False  # an image of another size than its camera is resized to it (the mask's size)
-    matte_threshold: float = 0.1  # matting against `backgrounds`: colour distance at alpha 0.5 (sgdr.data.matte)
+    matte_threshold: float = 0.1  # matting against `backgrounds`: chromaticity distance of the object (sgdr.data.matte)
     extras: dict = field(repr=False, default_factory=dict)  # layout-specific data (e.g. a real capture's static scan)
 
     @property
@@ -252,14 +252,6 @@ def read_mask(path: Path, width: int, height: int) -> np.ndarray:
     """[H, W] float32 in [0, 1] of a mask file (grey, or the first channel / alpha of a colour one)."""
     im = read_pixels(path, width, height)
     return np.ascontiguousarray(im[..., 3] if im.shape[2] == 4 else im[..., 0])
-
-
-def read_rgba(path: Path, width: int, height: int) -> np.ndarray:
-    """[H, W, 4] float32 of an RGBA file as stored (no compositing): sgdr's own layout."""
-    im = read_pixels(path, width, height)
-    if im.shape[2] != 4:
-        fail(path, "<image>", f"expected RGBA [H, W, 4], got {im.shape[2]} channels")
-    return im
 
 
 def write_straight_rgba(path: Path, rgba: np.ndarray):

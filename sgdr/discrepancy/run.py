@@ -26,27 +26,15 @@ log = logging.getLogger(__name__)
 
 
 def run_diagnosis(cfg) -> dict:
-    from sgdr.data import load_sequence
     from sgdr.discrepancy.candidates import CANDIDATES, Evaluator, fit_candidate
-    from sgdr.pipeline.asset import load_asset
     from sgdr.posterior.likelihood import CentreMap, observation
     from sgdr.posterior.rollouts import ROLLOUTS
-    from sgdr.posterior.run import run_scene_file, run_sequence
+    from sgdr.posterior.run import run_asset_and_sequence, strict_values
 
     dc = cfg.diagnose
     t0 = time.time()
     run_dir = Path(dc.run)
-    asset_dir = run_dir / "asset"
-    if not (asset_dir / "asset.json").exists():
-        raise FileNotFoundError(f"{asset_dir}: no asset; diagnose.run must name a finished run folder")
-    asset = load_asset(asset_dir)
-    seq_dir = Path(dc.sequence) if dc.sequence else run_sequence(run_dir)
-    seq = load_sequence(seq_dir, scene_file=cfg.scene_file or (run_scene_file(run_dir) if not dc.sequence else ""))
-    if len(seq.cameras) != len(asset.cameras) or seq.n_fit != asset.n_fit:
-        raise ValueError(
-            f"diagnose.sequence={seq_dir}: {len(seq.cameras)} views and {seq.n_fit} fit frames; the asset has "
-            f"{len(asset.cameras)} and {asset.n_fit}"
-        )
+    asset_dir, asset, seq_dir, seq = run_asset_and_sequence(run_dir, dc.sequence, cfg.scene_file, "diagnose")
     if len(seq.cameras) < 2:
         raise ValueError(f"{seq_dir}: one view; the diagnosis needs held-out views (at least 2)")
     views = list(range(len(seq.cameras)))
@@ -105,18 +93,6 @@ def run_diagnosis(cfg) -> dict:
     }
     out = Path(dc.out_dir) if dc.out_dir else run_dir / "diagnose"
     out.mkdir(parents=True, exist_ok=True)
-    (out / "diagnosis.json").write_text(json.dumps(_strict(record), indent=1, allow_nan=False))
+    (out / "diagnosis.json").write_text(json.dumps(strict_values(record), indent=1, allow_nan=False))
     record["file"] = str(out / "diagnosis.json")
     return record
-
-
-def _strict(obj):
-    if isinstance(obj, dict):
-        return {k: _strict(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_strict(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    return obj

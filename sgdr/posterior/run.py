@@ -42,14 +42,14 @@ def run_scene_file(run_dir: Path) -> str:
     return str(json.loads(f.read_text()).get("scene_file", "")) if f.exists() else ""
 
 
-def _strict(obj):
+def strict_values(obj):
     """NaN / inf -> None, numpy -> Python, so json.dumps(allow_nan=False) succeeds."""
     if isinstance(obj, dict):
-        return {k: _strict(v) for k, v in obj.items()}
+        return {k: strict_values(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_strict(v) for v in obj]
+        return [strict_values(v) for v in obj]
     if isinstance(obj, np.ndarray):
-        return _strict(obj.tolist())
+        return strict_values(obj.tolist())
     if isinstance(obj, (np.floating, float)):
         return float(obj) if np.isfinite(obj) else None
     if isinstance(obj, np.integer):
@@ -59,11 +59,30 @@ def _strict(obj):
     return obj
 
 
+def run_asset_and_sequence(run_dir: Path, sequence: str, scene_file: str, key: str):
+    """(asset_dir, asset, seq_dir, seq) of a finished run and the sequence it is compared with
+    (`sequence`, else the run's own, read with the run's scene file); `key` names the config
+    section (posterior | diagnose) in the errors. The sequence must have the asset's views and split."""
+    from sgdr.data import load_sequence
+    from sgdr.pipeline.asset import load_asset
+
+    asset_dir = Path(run_dir) / "asset"
+    if not (asset_dir / "asset.json").exists():
+        raise FileNotFoundError(f"{asset_dir}: no asset; {key}.run must name a finished run folder")
+    seq_dir = Path(sequence) if sequence else run_sequence(run_dir)
+    asset = load_asset(asset_dir)
+    seq = load_sequence(seq_dir, scene_file=scene_file or (run_scene_file(run_dir) if not sequence else ""))
+    if seq.n_fit != asset.n_fit or len(seq.cameras) != len(asset.cameras):
+        raise ValueError(
+            f"{key}.sequence={seq_dir}: {seq.n_fit} fit frames and {len(seq.cameras)} views, the asset "
+            f"has {asset.n_fit} and {len(asset.cameras)}; observe a sequence with the run's cameras and split"
+        )
+    return asset_dir, asset, seq_dir, seq
+
+
 def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     """cfg: the composed config (`Config`); returns the record written to posterior.json."""
-    from sgdr.data import load_sequence
     from sgdr.physics import Ground
-    from sgdr.pipeline.asset import load_asset
     from sgdr.posterior import predictive as pp
     from sgdr.posterior.likelihood import CentreMap, SilhouetteLikelihood, discrepancy, observation
     from sgdr.posterior.rollouts import ROLLOUTS
@@ -72,17 +91,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     pc = cfg.posterior
     t0 = time.time()
     run_dir = Path(pc.run)
-    asset_dir = run_dir / "asset"
-    if not (asset_dir / "asset.json").exists():
-        raise FileNotFoundError(f"{asset_dir}: no asset; posterior.run must name a finished run folder")
-    seq_dir = Path(pc.sequence) if pc.sequence else run_sequence(run_dir)
-    asset = load_asset(asset_dir)
-    seq = load_sequence(seq_dir, scene_file=cfg.scene_file or (run_scene_file(run_dir) if not pc.sequence else ""))
-    if seq.n_fit != asset.n_fit or len(seq.cameras) != len(asset.cameras):
-        raise ValueError(
-            f"posterior.sequence={seq_dir}: {seq.n_fit} fit frames and {len(seq.cameras)} views, the asset "
-            f"has {asset.n_fit} and {len(asset.cameras)}; observe a sequence with the run's cameras and split"
-        )
+    asset_dir, asset, seq_dir, seq = run_asset_and_sequence(run_dir, pc.sequence, cfg.scene_file, "posterior")
     out = Path(pc.out_dir) if pc.out_dir else run_dir / "posterior"
     out.mkdir(parents=True, exist_ok=True)
 
@@ -170,7 +179,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
             "seconds": float(time.time() - t0),
         },
     }
-    record = _strict(record)
+    record = strict_values(record)
     np.savez(
         out / "samples.npz",
         chains=chains,

@@ -113,8 +113,9 @@ def _gain(t, rgb, target):
         r = dr.detach(dr.gather(t.Float, rgb, idx + c))
         y = dr.gather(t.Float, target, idx + c)
         gains.append(dr.sum(r * y) / dr.maximum(dr.sum(r * r), 1e-8))
-    g = t.Float([float(x[0]) for x in gains])
-    return dr.gather(t.Float, g, dr.arange(t.UInt32, 3 * n) % 3)
+    dr.eval(gains)  # width 1 each: evaluated before they meet the 3n-wide layout (no host round trip)
+    channel = dr.arange(t.UInt32, 3 * n) % 3
+    return dr.select(channel == 0, gains[0], dr.select(channel == 1, gains[1], gains[2]))
 
 
 def mask_centroid(mask: np.ndarray) -> np.ndarray:
@@ -157,7 +158,6 @@ def register(
     R0, t0 = np.asarray(R0, dtype=np.float64), np.asarray(t0, dtype=np.float64).reshape(3)
     Xc = t.Array3f(*(t.Float((X - c)[:, i].astype(np.float32)) for i in range(3)))
     log_scales = t.Array3f(*(t.Float(p["log_scales"][:, i].astype(np.float32)) for i in range(3)))
-    base = replace(gaussians)
     targets, centres, grids, colours = [], [], [], []
     for cam, m in zip(cameras, masks):
         m = np.asarray(m, dtype=np.float32)
@@ -188,7 +188,7 @@ def register(
     for _ in tqdm(range(cfg.iterations), desc="registration", unit="step", disable=not progress, leave=False):
         rows, s, tr = pose()
         means = t.Array3f(*(s * (rows[i][0] * Xc.x + rows[i][1] * Xc.y + rows[i][2] * Xc.z) + tr[i] for i in range(3)))
-        g = replace(base, means=means, log_scales=log_scales + dr.log(s))
+        g = replace(gaussians, means=means, log_scales=log_scales + dr.log(s))
         loss = t.Float(0.0)
         for v in rng.permutation(len(cameras))[:n_views]:
             cam = cameras[v]

@@ -58,8 +58,19 @@ def diagnose(tiny, physics: dict, name: str, *extra):
     return run_diagnosis(cfg)
 
 
+FREE_FALL_AND_GROUND = "diagnose.candidates=[air_drag,gravity,ground_plane]"
+
+
 def test_null_twin_names_no_cause(tiny):
-    r = diagnose(tiny, {}, "null")
+    r = diagnose(tiny, {}, "null")  # every candidate of the default list
+    assert set(r["candidates"]) == {
+        "air_drag",
+        "gravity",
+        "ground_plane",
+        "ground_tilt",
+        "plasticity",
+        "heterogeneous_stiffness",
+    }
     assert r["cause"] == "none", r["candidates"]
     assert max(c["gain"] for c in r["candidates"].values()) < 0.05  # extra flexibility alone buys little
     assert json.loads(Path(r["file"]).read_text())["cause"] == "none"
@@ -68,7 +79,7 @@ def test_null_twin_names_no_cause(tiny):
 def test_a_moved_ground_is_named_with_its_offset(tiny):
     _, _, _, size = tiny
     offset = 0.1 * size
-    r = diagnose(tiny, {"ground_offset": offset}, "ground", "diagnose.min_gain=0.15")
+    r = diagnose(tiny, {"ground_offset": offset}, "ground", "diagnose.min_gain=0.15", FREE_FALL_AND_GROUND)
     assert r["cause"] == "ground_plane", r["candidates"]
     c = r["candidates"]["ground_plane"]
     assert c["decision"] == "cause" and 0.3 * offset < c["value"] < 1.5 * offset, c
@@ -85,7 +96,7 @@ def test_strong_drag_is_explained_by_a_slower_fall_and_the_driver_prints_json(ti
     twin = twin_sequence(run_dir / "asset", root / "twin_drag", {}, physics={"air_drag": 6.0})
     proc = subprocess.run(
         [sys.executable, "experiments/diagnose.py", *overrides, f"diagnose.run={run_dir}", f"diagnose.sequence={twin}",
-         f"diagnose.out_dir={root / 'drag'}", "diagnose.min_gain=0.15"],
+         f"diagnose.out_dir={root / 'drag'}", "diagnose.min_gain=0.15", FREE_FALL_AND_GROUND],
         cwd=ROOT, capture_output=True, text=True,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -12,7 +12,16 @@ class DiagnoseConfig:
     run: str = "outputs/torus_small_s0"  # the finished run folder (holds asset/)
     sequence: str = ""  # the observed sequence ("" = the run's own, from its RUN.json)
     out_dir: str = ""  # where diagnosis.json goes ("" = <run>/diagnose)
-    candidates: list = field(default_factory=lambda: ["air_drag", "gravity", "ground_plane"])  # CANDIDATES names
+    candidates: list = field(
+        default_factory=lambda: [
+            "air_drag",
+            "gravity",
+            "ground_plane",
+            "ground_tilt",
+            "plasticity",
+            "heterogeneous_stiffness",
+        ]
+    )  # CANDIDATES names
     n_points: int = 200  # bound Gaussian centres projected per view-frame (a fixed seeded subset)
     n_mask_points: int = 100  # silhouette pixels sampled per view-frame (the coverage term)
     frame_stride: int = 1  # every frame_stride-th fit frame after frame 0

@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 
 
 def run_diagnosis(cfg) -> dict:
-    from sgdr.discrepancy.candidates import CANDIDATES, Evaluator, fit_candidate
+    from sgdr.discrepancy.candidates import CANDIDATES, Context, Evaluator, fit_candidate
     from sgdr.posterior.likelihood import CentreMap, observation
     from sgdr.posterior.rollouts import ROLLOUTS
     from sgdr.posterior.run import run_asset_and_sequence, strict_values
@@ -54,17 +54,29 @@ def run_diagnosis(cfg) -> dict:
     base["d_future"] = ev.d({}, obs_future) if obs_future is not None else None
     if not np.isfinite(base["d_held_out"]):
         raise RuntimeError(f"{asset_dir}: the identified parameters' rollout is unstable")
+    ctx = Context(
+        values=asset.values,
+        physics=asset.physics,
+        anchors=np.asarray(asset.anchors, float),
+        size=size,
+        free_fall_times=np.arange(1, max(int(seq.hit_frame), 1)) / float(asset.fps),
+    )
     candidates = {}
     for name in dc.candidates:
         cand = CANDIDATES.get_named(name, "diagnose.candidates")
-        fit = fit_candidate(ev, cand, size, dc.evaluations)
+        fit = fit_candidate(ev, cand, ctx, dc.evaluations)
         gain = 1.0 - fit.d_held_out / base["d_held_out"]
         future_gain = 1.0 - fit.d_future / base["d_future"] if fit.d_future is not None and base["d_future"] else None
+        first = cand.params[0].name
         candidates[name] = {
             "cause": cand.cause,
-            "setting": f"physics.{cand.setting}",
-            "value": fit.value,
-            "interval": list(fit.interval),
+            "changes": cand.describes,
+            "value": fit.values[first],
+            "interval": list(fit.interval[first]),
+            "values": fit.values,
+            "intervals": {k: list(v) for k, v in fit.interval.items()},
+            "variant": fit.variant,
+            "settings": {f"physics.{k}": v for k, v in fit.settings.items()},
             "fit_loss": fit.d_fit,
             "held_out_loss": fit.d_held_out,
             "gain": gain,
@@ -72,7 +84,7 @@ def run_diagnosis(cfg) -> dict:
             "future_gain": future_gain,
             "evaluations": len(fit.evaluated),
         }
-        log.info("diagnose: %s = %.4g, held-out gain %.3f", name, fit.value, gain)
+        log.info("diagnose: %s = %s, held-out gain %.3f", name, fit.values, gain)
     best = max(candidates, key=lambda n: candidates[n]["gain"]) if candidates else None
     named = best is not None and candidates[best]["gain"] >= float(dc.min_gain)
     for name, c in candidates.items():

@@ -6,9 +6,9 @@ turns those values into `physics.*` settings (`sgdr.physics.extensions`) and rep
 asset's identified values (e.g. a stiffness field). A candidate is fitted from the base fit: the
 identified parameters are kept, only its own values are searched (scipy's bounded Brent search
 for one value, bounded Powell for several; `diagnose.evaluations` rollouts per value) to
-minimise the silhouette discrepancy D (`sgdr.posterior.likelihood.discrepancy`, the symmetric
-Chamfer distance between silhouettes and projected Gaussian centres, pixels²) summed over the
-*fitting* views. It is judged on the *held-out* views (every other view; never used for the
+minimise the discrepancy D (`diagnose.discrepancy`, `sgdr.discrepancy.measures`: by default the
+mean absolute difference between the sequence's images and the asset rendered from the rollout)
+summed over the *fitting* views. It is judged on the *held-out* views (every other view; never used for the
 fit) by its gain over the base (`sgdr.discrepancy.run`).
 
 The initial velocity is refitted with every candidate that changes the free fall (gravity, drag):
@@ -177,14 +177,15 @@ class Fit:
 
 class Evaluator:
     """D of the asset's rollouts with given physics settings and value replacements, on fitting /
-    held-out views and future frames; positions are cached per (settings, replacements)."""
+    held-out views and future frames; positions are cached per (settings, replacements).
+    score: (observation, positions [T, N_A, 3]) -> D [V, F] (`sgdr.discrepancy.measures`)."""
 
-    def __init__(self, asset, rollout, obs_fit, obs_held, obs_future, centre_map):
+    def __init__(self, asset, rollout, obs_fit, obs_held, obs_future, score):
         from sgdr.physics import Ground
 
         self.asset, self.rollout = asset, rollout
         self.obs_fit, self.obs_held, self.obs_future = obs_fit, obs_held, obs_future
-        self.centre_map = centre_map
+        self.score = score
         self.model, _ = asset.build()
         self.ground = Ground(asset.ground_point, asset.ground_normal)
         frames = [obs_fit.frames, obs_held.frames] + ([obs_future.frames] if obs_future is not None else [])
@@ -212,13 +213,14 @@ class Evaluator:
             self.cache[key] = pos[0] if stable[0] else None
         return self.cache[key]
 
-    def d(self, settings: dict, obs, values: dict | None = None) -> float:
-        from sgdr.posterior.likelihood import discrepancy
-
+    def per_view_frame(self, settings: dict, obs, values: dict | None = None) -> np.ndarray | None:
+        """D [V, F] of one rollout, None when it is unstable."""
         pos = self.positions(settings, values)
-        if pos is None:
-            return float("inf")
-        return float(np.sum(discrepancy(obs, self.centre_map(pos[None, obs.frames]))))
+        return None if pos is None else np.asarray(self.score(obs, pos), float)
+
+    def d(self, settings: dict, obs, values: dict | None = None) -> float:
+        d = self.per_view_frame(settings, obs, values)
+        return float("inf") if d is None else float(np.sum(d))
 
 
 def _search(objective, bounds: list, x0: np.ndarray, evaluations: int) -> np.ndarray:

@@ -22,8 +22,11 @@ class DiagnoseConfig:
             "heterogeneous_stiffness",
         ]
     )  # CANDIDATES names
-    n_points: int = 200  # bound Gaussian centres projected per view-frame (a fixed seeded subset)
-    n_mask_points: int = 100  # silhouette pixels sampled per view-frame (the coverage term)
+    discrepancy: str = (
+        "render"  # how a rollout is measured against the images: render | points (sgdr.discrepancy.measures)
+    )
+    n_points: int = 200  # "points": bound Gaussian centres projected per view-frame (a fixed seeded subset)
+    n_mask_points: int = 100  # "points": silhouette pixels sampled per view-frame (the coverage term)
     frame_stride: int = 1  # every frame_stride-th fit frame after frame 0
     evaluations: int = 16  # rollouts of the bounded 1-D search per candidate
     min_gain: float = 0.1  # held-out gain 1 - D_candidate / D_base needed to name a cause (docs/discrepancy.md)
@@ -34,6 +37,7 @@ CHECKS = {
     "sequence": any_text("empty: the run's own sequence"),
     "out_dir": any_text("empty: <run>/diagnose"),
     "candidates": list_of(choice("sgdr.discrepancy.candidates:CANDIDATES"), min_len=1),
+    "discrepancy": choice("sgdr.discrepancy.measures:MEASURES"),
     "n_points": at_least(8),
     "n_mask_points": at_least(8),
     "frame_stride": at_least(1),

@@ -2,13 +2,18 @@
 
 1. The run's asset (its identified physics) and the observed sequence (the run's own, or
    `diagnose.sequence`, e.g. a twin with an injected effect).
-2. Silhouette observations (`sgdr.posterior.likelihood.observation`): the fit frames after
+2. Observations of the measure (`diagnose.discrepancy`, `sgdr.discrepancy.measures`): the fit frames after
    frame 0 in the fitting views (even positions among the views) and in the held-out views (odd
    positions), and the future frames in all views when the sequence has future frames.
 3. The base model's D on each, then every candidate (`sgdr.discrepancy.candidates`) fitted on
    the fitting views and judged on the held-out ones.
 4. The decision: the candidate with the largest held-out gain is the cause if that gain is at
-   least `diagnose.min_gain`, else "none"; gain = 1 - D_held_out(candidate) / D_held_out(base).
+   least `diagnose.min_gain`, else "none"; gain = 1 - (D_held_out(candidate) - floor) /
+   (D_held_out(base) - floor), the share of the base's discrepancy above the floor it removes.
+   The floor is frame 0's D in the same views, once per frame: the rest state is the static
+   fit's and no extension changes it, so what it leaves (appearance, the measure's own
+   representation error) is not the dynamics' to explain. Without the floor a gain is diluted by
+   it, the more the better the dynamics already fit (`relative_gain` keeps 1 - D / D_base).
 
 Writes `diagnosis.json` (strict JSON) and returns it.
 """
@@ -25,9 +30,19 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 
+def excess_gain(d: float, d_base: float, floor: float | None) -> float:
+    """1 - (d - floor) / (d_base - floor): the share of the base's discrepancy above the floor
+    that a candidate removes (0 when the base is at the floor: nothing left to explain)."""
+    floor = 0.0 if floor is None else float(floor)
+    room = float(d_base) - floor
+    if not np.isfinite(d):
+        return -float("inf")
+    return 1.0 - (float(d) - floor) / room if room > 1e-12 * max(abs(float(d_base)), 1e-300) else 0.0
+
+
 def run_diagnosis(cfg) -> dict:
     from sgdr.discrepancy.candidates import CANDIDATES, Context, Evaluator, fit_candidate
-    from sgdr.posterior.likelihood import CentreMap, observation
+    from sgdr.discrepancy.measures import MEASURES
     from sgdr.posterior.rollouts import ROLLOUTS
     from sgdr.posterior.run import run_asset_and_sequence, strict_values
 
@@ -42,18 +57,25 @@ def run_diagnosis(cfg) -> dict:
     fit_frames = np.arange(1, seq.n_fit, int(dc.frame_stride))
     if fit_frames.size == 0:
         raise ValueError(f"{seq_dir}: no fit frame after frame 0")
-    obs_fit = observation(seq, fit_views, fit_frames, dc.n_mask_points, seed=cfg.seed)
-    obs_held = observation(seq, held_views, fit_frames, dc.n_mask_points, seed=cfg.seed)
+    measure = MEASURES.get_named(dc.discrepancy, "diagnose.discrepancy")
+    obs_fit = measure.observe(seq, fit_views, fit_frames, dc, cfg.seed)
+    obs_held = measure.observe(seq, held_views, fit_frames, dc, cfg.seed)
     future = np.arange(seq.n_fit, seq.n_frames)
-    obs_future = observation(seq, views, future, dc.n_mask_points, seed=cfg.seed) if future.size else None
-    ev = Evaluator(
-        asset, ROLLOUTS.get_named("loop"), obs_fit, obs_held, obs_future, CentreMap(asset, dc.n_points, cfg.seed)
-    )
+    obs_future = measure.observe(seq, views, future, dc, cfg.seed) if future.size else None
+    score = measure.scorer(asset, dc, cfg.render, cfg.seed)
+    ev = Evaluator(asset, ROLLOUTS.get_named("loop"), obs_fit, obs_held, obs_future, score)
     size = float(np.linalg.norm(np.ptp(np.asarray(asset.anchors, float), axis=0)))
     base = {"d_fit": ev.d({}, obs_fit), "d_held_out": ev.d({}, obs_held)}
     base["d_future"] = ev.d({}, obs_future) if obs_future is not None else None
     if not np.isfinite(base["d_held_out"]):
         raise RuntimeError(f"{asset_dir}: the identified parameters' rollout is unstable")
+    # the floor: frame 0's D (the rest state, which no extension changes) in each view, once per
+    # frame of the observation: what the asset's appearance leaves that no dynamics can remove
+    floor = {}
+    for key, vs, n in (("held_out", held_views, fit_frames.size), ("future", views, future.size)):
+        zero = measure.observe(seq, vs, np.array([0]), dc, cfg.seed)
+        floor[key] = float(n * np.sum(score(zero, ev.positions({})))) if n else None
+    base["floor_held_out"], base["floor_future"] = floor["held_out"], floor["future"]
     ctx = Context(
         values=asset.values,
         physics=asset.physics,
@@ -65,8 +87,8 @@ def run_diagnosis(cfg) -> dict:
     for name in dc.candidates:
         cand = CANDIDATES.get_named(name, "diagnose.candidates")
         fit = fit_candidate(ev, cand, ctx, dc.evaluations)
-        gain = 1.0 - fit.d_held_out / base["d_held_out"]
-        future_gain = 1.0 - fit.d_future / base["d_future"] if fit.d_future is not None and base["d_future"] else None
+        gain = excess_gain(fit.d_held_out, base["d_held_out"], floor["held_out"])
+        future_gain = excess_gain(fit.d_future, base["d_future"], floor["future"]) if fit.d_future is not None else None
         first = cand.params[0].name
         candidates[name] = {
             "cause": cand.cause,
@@ -80,6 +102,7 @@ def run_diagnosis(cfg) -> dict:
             "fit_loss": fit.d_fit,
             "held_out_loss": fit.d_held_out,
             "gain": gain,
+            "relative_gain": 1.0 - fit.d_held_out / base["d_held_out"],
             "future_loss": fit.d_future,
             "future_gain": future_gain,
             "evaluations": len(fit.evaluated),
@@ -94,6 +117,7 @@ def run_diagnosis(cfg) -> dict:
         "candidates": candidates,
         "base": base,
         "min_gain": float(dc.min_gain),
+        "discrepancy": {"measure": dc.discrepancy, "unit": measure.unit},
         "fitting_views": [seq.cameras[v].name for v in fit_views],
         "held_out_views": [seq.cameras[v].name for v in held_views],
         "frames": fit_frames.tolist(),

@@ -144,12 +144,10 @@ def _run(cmd: list[str], log_file: Path) -> tuple[int, str]:
     return proc.returncode, proc.stdout
 
 
-def _last_json(text: str) -> dict:
-    for line in reversed(text.strip().splitlines()):
-        line = line.strip()
-        if line.startswith("{"):
-            return json.loads(line)
-    raise ValueError("no JSON line in the output")
+def _error(text: str) -> list[str]:
+    """The last lines of a failed command that say what went wrong (not Hydra's hint)."""
+    lines = [ln for ln in text.strip().splitlines() if ln.strip() and "HYDRA_FULL_ERROR" not in ln]
+    return lines[-2:]
 
 
 def _commit() -> str:
@@ -179,7 +177,7 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
                 **rec,
                 "status": "failed",
                 "stage": "generate",
-                "error": out.strip().splitlines()[-1:],
+                "error": _error(out),
                 "log": str(log_file),
             }
         rec["generate_seconds"] = time.time() - t0
@@ -191,7 +189,7 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
                 **rec,
                 "status": "failed",
                 "stage": "reconstruct",
-                "error": out.strip().splitlines()[-1:],
+                "error": _error(out),
                 "log": str(log_file),
             }
     rec["reconstruct_seconds"] = time.time() - t0 - rec.get("generate_seconds", 0.0)
@@ -203,7 +201,7 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
             **rec,
             "status": "failed",
             "stage": "diagnose",
-            "error": out.strip().splitlines()[-1:],
+            "error": _error(out),
             "log": str(log_file),
         }
     diag = json.loads((run_dir / "diagnose" / "diagnosis.json").read_text())

@@ -68,7 +68,7 @@ def _named(r, cause):
 
 
 def test_null_twin_names_no_cause(tiny):
-    r = diagnose(tiny, {}, "null")  # every candidate of the default list
+    r = diagnose(tiny, {}, "null", "diagnose.evaluations=8")  # every candidate of the default list
     assert set(r["candidates"]) == {
         "air_drag",
         "gravity",
@@ -134,5 +134,6 @@ def test_drag_is_named_and_the_driver_prints_json(tiny):
     assert proc.returncode == 0, proc.stderr[-3000:]
     last = json.loads(proc.stdout.strip().splitlines()[-1])
     assert last["cause"] == "air_drag", last
+    assert last["v0_refit"] is False  # a twin shares the asset's v0: nothing to refit
     assert last["candidates"]["air_drag"]["value"] == pytest.approx(4.0, rel=0.25)
     assert last["candidates"]["air_drag"]["gain"] >= 0.3

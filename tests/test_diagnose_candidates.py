@@ -123,3 +123,21 @@ def test_the_ground_tilt_candidate_maps_its_tilt_vector():
     assert settings["ground_tilt_deg"] == pytest.approx(5.0)
     assert settings["ground_tilt_azimuth_deg"] == pytest.approx(np.degrees(np.arctan2(4.0, 3.0)))
     assert settings["ground_offset"] == pytest.approx(0.01)
+
+
+def test_downscaled_cameras_match_block_means():
+    from sgdr.cameras import Camera
+    from sgdr.discrepancy.measures import block_mean, downscale_factor, downscaled
+
+    cam = Camera.look_at([1.5, -1.0, 1.2], [0.0, 0.0, 0.2], [0, 0, 1], 40.0, 128, 96, "c")
+    k = downscale_factor(cam.width, cam.height, 64)
+    assert k == 2 and downscale_factor(32, 32, 64) == 1
+    small = downscaled(cam, k)
+    assert (small.width, small.height) == (64, 48)
+    pts = np.random.default_rng(0).normal(0.0, 0.2, (20, 3)) + [0.0, 0.0, 0.2]
+    uv, _ = cam.project(pts)
+    uv_small, _ = small.project(pts)
+    np.testing.assert_allclose(uv_small, uv / k, atol=1e-9)  # a point in block i of the large image is in pixel i
+    img = np.random.default_rng(1).uniform(size=(96, 128, 4))
+    b = block_mean(img, 2)
+    assert b.shape == (48, 64, 4) and b[3, 5, 1] == pytest.approx(img[6:8, 10:12, 1].mean())

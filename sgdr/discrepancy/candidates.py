@@ -11,9 +11,11 @@ mean absolute difference between the sequence's images and the asset rendered fr
 summed over the *fitting* views. It is judged on the *held-out* views (every other view; never used for the
 fit) by its gain over the base (`sgdr.discrepancy.run`).
 
-The initial velocity is refitted with every candidate that changes the free fall (gravity, drag):
-the pipeline fitted v0 to the frames before the hit frame under the base model's free fall, so a
-weaker gravity fitted alone would be judged with a v0 that compensated for it. The fall is rigid
+The initial velocity is refitted with every candidate that changes the free fall (gravity, drag)
+when the diagnosis observes the run's own sequence: the pipeline fitted v0 to its frames before
+the hit frame under the base model's free fall, so a weaker gravity fitted alone would be judged
+with a v0 that compensated for it. On another sequence (a twin simulated from the asset, whose
+v0 it shares) the asset's v0 is kept. The fall is rigid
 and closed-form (`sgdr.identify.velocity`), so the v0 that keeps the base's pre-hit trajectory
 under the candidate's gravity and drag is a least-squares solve, not a search (`refit_v0`).
 

@@ -25,6 +25,7 @@ class DiagnoseConfig:
     discrepancy: str = (
         "render"  # how a rollout is measured against the images: render | points (sgdr.discrepancy.measures)
     )
+    max_image_size: int = 64  # "render": larger images are compared at this size (block means), pixels
     n_points: int = 200  # "points": bound Gaussian centres projected per view-frame (a fixed seeded subset)
     n_mask_points: int = 100  # "points": silhouette pixels sampled per view-frame (the coverage term)
     frame_stride: int = 1  # every frame_stride-th fit frame after frame 0
@@ -38,6 +39,7 @@ CHECKS = {
     "out_dir": any_text("empty: <run>/diagnose"),
     "candidates": list_of(choice("sgdr.discrepancy.candidates:CANDIDATES"), min_len=1),
     "discrepancy": choice("sgdr.discrepancy.measures:MEASURES"),
+    "max_image_size": at_least(8),
     "n_points": at_least(8),
     "n_mask_points": at_least(8),
     "frame_stride": at_least(1),

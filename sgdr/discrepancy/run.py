@@ -40,11 +40,18 @@ def excess_gain(d: float, d_base: float, floor: float | None) -> float:
     return 1.0 - (float(d) - floor) / room if room > 1e-12 * max(abs(float(d_base)), 1e-300) else 0.0
 
 
+def _same_sequence(a, b) -> bool:
+    try:
+        return Path(a).resolve() == Path(b).resolve()
+    except OSError:
+        return False
+
+
 def run_diagnosis(cfg) -> dict:
     from sgdr.discrepancy.candidates import CANDIDATES, Context, Evaluator, fit_candidate
     from sgdr.discrepancy.measures import MEASURES
     from sgdr.posterior.rollouts import ROLLOUTS
-    from sgdr.posterior.run import run_asset_and_sequence, strict_values
+    from sgdr.posterior.run import run_asset_and_sequence, run_sequence, strict_values
 
     dc = cfg.diagnose
     t0 = time.time()
@@ -76,12 +83,15 @@ def run_diagnosis(cfg) -> dict:
         zero = measure.observe(seq, vs, np.array([0]), dc, cfg.seed)
         floor[key] = float(n * np.sum(score(zero, ev.positions({})))) if n else None
     base["floor_held_out"], base["floor_future"] = floor["held_out"], floor["future"]
+    # v0 is refitted with gravity and drag only on the sequence the run fitted it to (its
+    # pre-hit frames under the base model); another sequence (a twin) keeps the asset's v0
+    own = _same_sequence(seq_dir, run_sequence(run_dir))
     ctx = Context(
         values=asset.values,
         physics=asset.physics,
         anchors=np.asarray(asset.anchors, float),
         size=size,
-        free_fall_times=np.arange(1, max(int(seq.hit_frame), 1)) / float(asset.fps),
+        free_fall_times=np.arange(1, max(int(seq.hit_frame), 1)) / float(asset.fps) if own else np.zeros(0),
     )
     candidates = {}
     for name in dc.candidates:
@@ -118,6 +128,7 @@ def run_diagnosis(cfg) -> dict:
         "base": base,
         "min_gain": float(dc.min_gain),
         "discrepancy": {"measure": dc.discrepancy, "unit": measure.unit},
+        "v0_refit": bool(own),
         "fitting_views": [seq.cameras[v].name for v in fit_views],
         "held_out_views": [seq.cameras[v].name for v in held_views],
         "frames": fit_frames.tolist(),

@@ -141,3 +141,15 @@ def test_downscaled_cameras_match_block_means():
     img = np.random.default_rng(1).uniform(size=(96, 128, 4))
     b = block_mean(img, 2)
     assert b.shape == (48, 64, 4) and b[3, 5, 1] == pytest.approx(img[6:8, 10:12, 1].mean())
+
+
+def test_the_excess_gain_is_a_share_of_the_room_above_the_floor():
+    from sgdr.discrepancy.run import excess_gain
+
+    assert excess_gain(6.0, 10.0, 2.0) == pytest.approx(0.5)  # half of the 8 above the floor removed
+    assert excess_gain(2.0, 10.0, 2.0) == pytest.approx(1.0)
+    assert excess_gain(10.0, 10.0, 2.0) == 0.0 and excess_gain(12.0, 10.0, 2.0) < 0
+    assert excess_gain(float("inf"), 10.0, 2.0) == -float("inf")
+    # a base at its floor: a chance improvement of 0.1% is a small share of the 5% margin
+    assert excess_gain(0.999, 1.0, 1.0) == pytest.approx(0.02)
+    assert excess_gain(6.0, 10.0, None) == pytest.approx(0.4)  # no floor: the relative gain

@@ -30,6 +30,9 @@ class DiagnoseConfig:
     n_mask_points: int = 100  # "points": silhouette pixels sampled per view-frame (the coverage term)
     frame_stride: int = 1  # every frame_stride-th fit frame after frame 0
     evaluations: int = 16  # rollouts of the bounded 1-D search per candidate
+    floor_margin: float = (
+        0.05  # the room above the floor a gain is a share of is at least this x the floor (run.excess_gain)
+    )
     min_gain: float = 0.1  # held-out gain 1 - D_candidate / D_base needed to name a cause (docs/discrepancy.md)
 
 
@@ -44,5 +47,6 @@ CHECKS = {
     "n_mask_points": at_least(8),
     "frame_stride": at_least(1),
     "evaluations": at_least(4),
+    "floor_margin": between(0.0, 1.0),
     "min_gain": between(0.0, 1.0),
 }

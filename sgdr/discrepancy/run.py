@@ -30,14 +30,17 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 
-def excess_gain(d: float, d_base: float, floor: float | None) -> float:
-    """1 - (d - floor) / (d_base - floor): the share of the base's discrepancy above the floor
-    that a candidate removes (0 when the base is at the floor: nothing left to explain)."""
-    floor = 0.0 if floor is None else float(floor)
-    room = float(d_base) - floor
+def excess_gain(d: float, d_base: float, floor: float | None, margin: float = 0.05) -> float:
+    """(d_base - d) / room with room = d_base - floor: the share of the base's discrepancy above
+    the floor that a candidate removes, 1 - (d - floor) / (d_base - floor). The room is at least
+    `margin` x floor (`diagnose.floor_margin`): a base already at its floor (a twin of the asset
+    itself) leaves nothing to explain, and a tiny, chance improvement there must not read as a
+    large share of nothing."""
     if not np.isfinite(d):
         return -float("inf")
-    return 1.0 - (float(d) - floor) / room if room > 1e-12 * max(abs(float(d_base)), 1e-300) else 0.0
+    floor = 0.0 if floor is None else float(floor)
+    room = max(float(d_base) - floor, float(margin) * floor, 1e-12 * abs(float(d_base)), 1e-300)
+    return (float(d_base) - float(d)) / room
 
 
 def _same_sequence(a, b) -> bool:
@@ -97,8 +100,11 @@ def run_diagnosis(cfg) -> dict:
     for name in dc.candidates:
         cand = CANDIDATES.get_named(name, "diagnose.candidates")
         fit = fit_candidate(ev, cand, ctx, dc.evaluations)
-        gain = excess_gain(fit.d_held_out, base["d_held_out"], floor["held_out"])
-        future_gain = excess_gain(fit.d_future, base["d_future"], floor["future"]) if fit.d_future is not None else None
+        margin = float(dc.floor_margin)
+        gain = excess_gain(fit.d_held_out, base["d_held_out"], floor["held_out"], margin)
+        future_gain = (
+            excess_gain(fit.d_future, base["d_future"], floor["future"], margin) if fit.d_future is not None else None
+        )
         first = cand.params[0].name
         candidates[name] = {
             "cause": cand.cause,

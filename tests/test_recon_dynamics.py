@@ -295,3 +295,8 @@ def test_a_non_finite_gradient_skips_the_adam_step_and_leaves_the_parameters_fin
     dr.backward(opt["kappa"] * opt["kappa"])  # the next, finite gradient steps as usual
     assert finite_step(opt, cfg) is True
     assert float(opt["kappa"][0]) == pytest.approx(0.4, abs=1e-4)
+    dr.backward(opt["kappa"] * 1e30)  # finite, but its square overflows Adam's second moment
+    assert finite_step(opt, cfg) is False
+    assert float(opt["kappa"][0]) == pytest.approx(0.4, abs=1e-4)  # undone
+    dr.backward(opt["kappa"] * opt["kappa"])
+    assert finite_step(opt, cfg) is True and np.isfinite(float(opt["kappa"][0]))

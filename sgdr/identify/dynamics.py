@@ -278,19 +278,24 @@ def pass_full(p: _Pass, opt, rng, n_t: int) -> tuple[list[float], int]:
 
 
 def finite_step(opt, cfg) -> bool:
-    """One Adam step and the range clamp, unless a gradient is NaN/inf: then the step is skipped
-    and the gradients cleared (one such step would make every parameter NaN, and the next
-    rollout fail), with a warning; False when skipped. A finite loss can still have a
-    non-finite gradient (a near-coincident spring or contact in one substep)."""
+    """One Adam step and the range clamp, unless it would leave a parameter NaN/inf: a NaN/inf
+    gradient, or a finite one so large that Adam's second moment overflows float32 (seen on the
+    small cross under gravity x1.15). Then the step is undone (values and moments restored), the
+    gradients cleared, a warning logged, and False returned; one such step would otherwise make
+    every parameter NaN and the next rollout fail."""
     bad = [name for name in opt.keys() if not np.all(np.isfinite(to_numpy(dr.grad(opt[name]))))]
-    if bad:
-        for name in opt.keys():
-            dr.clear_grad(opt[name])
-        log.warning("dynamics: non-finite gradient of %s; the Adam step is skipped", ", ".join(bad))
-        return False
-    opt.step()
-    clamp_to_ranges(opt, cfg)
-    return True
+    if not bad:
+        before = adam_to_numpy(opt)
+        opt.step()
+        clamp_to_ranges(opt, cfg)
+        bad = [name for name in opt.keys() if not np.all(np.isfinite(to_numpy(opt[name])))]
+        if not bad:
+            return True
+        adam_from_numpy(opt, before)
+    for name in opt.keys():
+        dr.clear_grad(opt[name])
+    log.warning("dynamics: the Adam step would make %s non-finite; skipped", ", ".join(bad))
+    return False
 
 
 def fit_dynamics(

@@ -18,6 +18,9 @@ class DiagnoseConfig:
     frame_stride: int = 1  # every frame_stride-th fit frame after frame 0
     evaluations: int = 16  # rollouts of the bounded 1-D search per candidate
     min_gain: float = 0.1  # held-out gain 1 - D_candidate / D_base needed to name a cause (docs/discrepancy.md)
+    residuals: bool = True  # also the residual diagnostics of the base fit (residuals.json, residual_*.png)
+    residual_grid: int = 48  # blocks on the long side of the spatial residual maps (full resolution when larger)
+    residual_views: int = 4  # views shown in residual_spatial.png (those that disagree most)
 
 
 CHECKS = {
@@ -30,4 +33,6 @@ CHECKS = {
     "frame_stride": at_least(1),
     "evaluations": at_least(4),
     "min_gain": between(0.0, 1.0),
+    "residual_grid": at_least(4),
+    "residual_views": at_least(1),
 }

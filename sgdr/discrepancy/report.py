@@ -27,8 +27,10 @@ def _pyplot():
 
 
 def _marks(ax, record: dict):
-    """The hit frame (dotted) and the first future frame (dashed) on a frames axis."""
+    """The hit frames (dotted; observed black, simulated blue) and the first future frame (dashed)."""
     ax.axvline(record["hit_frame"], color="k", ls=":", lw=1, label="hit frame")
+    if record["hit_frame_simulated"] != record["hit_frame"]:
+        ax.axvline(record["hit_frame_simulated"], color="tab:blue", ls=":", lw=1, label="hit frame, simulated")
     if record["n_fit"] < record["frames"]:
         ax.axvline(record["n_fit"] - 0.5, color="tab:orange", ls="--", lw=1, label="fit | future")
 

@@ -335,8 +335,12 @@ def residual_diagnostics(seq, asset, positions: np.ndarray, d: np.ndarray, grid:
 
     positions: [T, N_A, 3] the base rollout's anchors (T may exceed the sequence: cut); d: [V, T]
     (`d_matrix`); grid: pixels on the long side of the spatial maps (diagnose.residual_grid).
-    Heights use the sequence's recorded ground, the fall its recorded gravity."""
+    Heights use the sequence's recorded ground, the fall its recorded gravity. The observed
+    contact starts at the sequence's hit frame, the simulated one at the rollout's own (the first
+    frame an anchor touches the asset's contact plane); the free-fall fits of both use the frames
+    before the earlier of the two, so that both see the same frames of free flight."""
     from sgdr.posterior.likelihood import CentreMap
+    from sgdr.posterior.twin import hit_frame
 
     cams = list(seq.cameras)
     t_n = int(min(positions.shape[0], seq.n_frames, d.shape[1]))
@@ -353,6 +357,9 @@ def residual_diagnostics(seq, asset, positions: np.ndarray, d: np.ndarray, grid:
         "simulated": trajectory(cams, uv_sim, usable),
         "anchors": positions.mean(axis=1),
     }
+    hits = {"observed": int(seq.hit_frame)}
+    hits["simulated"] = hits["anchors"] = hit_frame(positions, asset.ground_point, asset.ground_normal)
+    free = min(hits.values())
     fit = np.arange(t_n) < seq.n_fit
     com = {"views_used": usable.sum(axis=0), "size": size}
     for name, x in tracks.items():
@@ -374,6 +381,7 @@ def residual_diagnostics(seq, asset, positions: np.ndarray, d: np.ndarray, grid:
         "frames": t_n,
         "n_fit": int(seq.n_fit),
         "hit_frame": int(seq.hit_frame),
+        "hit_frame_simulated": hits["simulated"],
         "fps": float(seq.fps),
         "views": [c.name for c in cams],
         "density_level": levels,
@@ -386,8 +394,8 @@ def residual_diagnostics(seq, asset, positions: np.ndarray, d: np.ndarray, grid:
             "mean_future": float(_nanmean(d[:, :t_n][:, ~fit])) if (~fit).any() else None,
         },
         "com": com,
-        "free_flight": {n: free_flight(x, seq.gravity, seq.fps, seq.hit_frame) for n, x in tracks.items()},
-        "contact": {n: contact(x, seq.ground_point, seq.ground_normal, seq.hit_frame) for n, x in tracks.items()},
+        "free_flight": {n: free_flight(x, seq.gravity, seq.fps, free) for n, x in tracks.items()},
+        "contact": {n: contact(x, seq.ground_point, seq.ground_normal, hits[n]) for n, x in tracks.items()},
         "rest_shape": rest_shape(cams, observed, simulated, tracks["anchors"][0], seq.ground_normal, 0.1 * size),
         "spatial": {"disagreement": disagreement, "order": order, "grid": int(grid)},
     }

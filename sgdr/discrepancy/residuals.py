@@ -48,7 +48,7 @@ def _centre_counts(cam, centres: np.ndarray) -> np.ndarray:
     uv, z = uv.reshape(t, p, 2), z.reshape(t, p)
     col, row = np.floor(uv[..., 0]).astype(int), np.floor(uv[..., 1]).astype(int)
     keep = (z > 0) & (col >= 0) & (col < cam.width) & (row >= 0) & (row < cam.height)
-    counts = np.zeros((t, cam.height, cam.width))
+    counts = np.zeros((t, cam.height, cam.width), np.float32)
     frame = np.broadcast_to(np.arange(t)[:, None], keep.shape)
     np.add.at(counts, (frame[keep], row[keep], col[keep]), 1.0)
     return counts
@@ -64,20 +64,21 @@ def simulated_masks(cameras, centres: np.ndarray, observed: list) -> tuple[list,
     that view's frame 0 is empty or sees no centre."""
     from scipy.ndimage import gaussian_filter
 
-    density, thresholds = [], np.full(len(cameras), np.nan)
-    for v, (cam, obs) in enumerate(zip(cameras, observed)):
-        counts = _centre_counts(cam, centres)
-        area = int(obs[0].sum())
-        inside = float(counts[0][obs[0]].sum())
-        sigma = max(1.0, float(np.sqrt(area / inside))) if inside > 0 else 1.0
-        dens = gaussian_filter(counts, sigma=(0.0, sigma, sigma), mode="constant")
-        level = np.sort(dens[0].ravel())[::-1]
+    def density(cam, frames, sigma):  # [T, H, W] float32, smoothed centre counts
+        return gaussian_filter(_centre_counts(cam, frames), sigma=(0.0, sigma, sigma), mode="constant")
+
+    sigmas, thresholds = np.ones(len(cameras)), np.full(len(cameras), np.nan)
+    for v, (cam, obs) in enumerate(zip(cameras, observed)):  # frame 0 only: the calibration
+        counts = _centre_counts(cam, centres[:1])[0]
+        area, inside = int(obs[0].sum()), float(counts[obs[0]].sum())
+        sigmas[v] = max(1.0, float(np.sqrt(area / inside))) if inside > 0 else 1.0
+        level = np.sort(density(cam, centres[:1], sigmas[v])[0].ravel())[::-1]
         if area > 0 and level[0] > 0:
             thresholds[v] = level[min(area, level.size) - 1]
-        density.append(dens)
     fallback = float(np.nanmedian(thresholds)) if np.isfinite(thresholds).any() else 0.5
     thresholds = np.where(np.isfinite(thresholds), thresholds, fallback)
-    return [d >= max(t, 1e-9) for d, t in zip(density, thresholds)], thresholds
+    masks = [density(cam, centres, s) >= max(t, 1e-9) for cam, s, t in zip(cameras, sigmas, thresholds)]
+    return masks, thresholds
 
 
 def centroids(masks: list) -> tuple[np.ndarray, np.ndarray]:

@@ -55,30 +55,39 @@ def _centre_counts(cam, centres: np.ndarray) -> np.ndarray:
 
 
 def simulated_masks(cameras, centres: np.ndarray, observed: list) -> tuple[list, np.ndarray]:
-    """([V] -> [T, H, W] bool simulated silhouettes, thresholds [V]). centres: [T, P, 3] world.
+    """([V] -> [T, H, W] bool simulated silhouettes, frame-0 density levels [V]). centres: [T, P, 3] world.
 
-    A view's projected centres are counted per pixel and smoothed by a Gaussian of σ = the mean
+    A view's projected centres are counted per pixel and smoothed by a Gaussian of σ_0 = the mean
     spacing of the centres inside the frame-0 silhouette, sqrt(area / count) (at least 1 px): sparse
-    centres close up, a few stray ones stay below the threshold. The threshold of a view is the
-    one whose frame-0 area equals the observed frame-0 area; the median of the other views' when
-    that view's frame 0 is empty or sees no centre."""
+    centres close up, a few stray ones stay below the level. The level ℓ_0 of a view is the one
+    whose frame-0 area equals the observed frame-0 area (the median of the other views' when that
+    view's frame 0 is empty or sees no centre). In frame f the object's depth z_f (the centres'
+    mean, camera z) scales its image by s = z_0 / z_f, so σ_f = s σ_0 and ℓ_f = ℓ_0 / s²: a change
+    of distance alone scales the simulated silhouette's area by s², as it scales the observed one.
+    Without this a fixed σ and level shrink a receding object's silhouette too little."""
     from scipy.ndimage import gaussian_filter
 
-    def density(cam, frames, sigma):  # [T, H, W] float32, smoothed centre counts
-        return gaussian_filter(_centre_counts(cam, frames), sigma=(0.0, sigma, sigma), mode="constant")
+    def density(counts, sigma):  # [H, W] smoothed centre counts
+        return gaussian_filter(counts, sigma=sigma, mode="constant")
 
-    sigmas, thresholds = np.ones(len(cameras)), np.full(len(cameras), np.nan)
-    for v, (cam, obs) in enumerate(zip(cameras, observed)):  # frame 0 only: the calibration
-        counts = _centre_counts(cam, centres[:1])[0]
-        area, inside = int(obs[0].sum()), float(counts[obs[0]].sum())
+    sigmas, levels = np.ones(len(cameras)), np.full(len(cameras), np.nan)
+    counts = [_centre_counts(cam, centres) for cam in cameras]  # [V] -> [T, H, W]
+    for v, obs in enumerate(observed):  # frame 0: the calibration
+        area, inside = int(obs[0].sum()), float(counts[v][0][obs[0]].sum())
         sigmas[v] = max(1.0, float(np.sqrt(area / inside))) if inside > 0 else 1.0
-        level = np.sort(density(cam, centres[:1], sigmas[v])[0].ravel())[::-1]
-        if area > 0 and level[0] > 0:
-            thresholds[v] = level[min(area, level.size) - 1]
-    fallback = float(np.nanmedian(thresholds)) if np.isfinite(thresholds).any() else 0.5
-    thresholds = np.where(np.isfinite(thresholds), thresholds, fallback)
-    masks = [density(cam, centres, s) >= max(t, 1e-9) for cam, s, t in zip(cameras, sigmas, thresholds)]
-    return masks, thresholds
+        ranked = np.sort(density(counts[v][0], sigmas[v]).ravel())[::-1]
+        if area > 0 and ranked[0] > 0:
+            levels[v] = ranked[min(area, ranked.size) - 1]
+    fallback = float(np.nanmedian(levels)) if np.isfinite(levels).any() else 0.5
+    levels = np.where(np.isfinite(levels), levels, fallback)
+    masks = []
+    for cam, c, sigma, level in zip(cameras, counts, sigmas, levels):
+        z = cam.to_camera(centres.mean(axis=1))[:, 2]  # [T] the object's depth
+        scale = np.ones_like(z)
+        if z[0] > 0:
+            scale[z > 0] = z[0] / z[z > 0]
+        masks.append(np.stack([density(c[f], sigma * s) >= max(level / s**2, 1e-9) for f, s in enumerate(scale)]))
+    return masks, levels
 
 
 def centroids(masks: list) -> tuple[np.ndarray, np.ndarray]:

@@ -113,20 +113,20 @@ def test_simulated_silhouette_matches_the_rest_area_and_the_maps_show_where_they
 def test_simulated_silhouette_of_a_receding_object_shrinks_like_the_observed_one():
     cam = ring_cameras(1, [0, 0, 0.5], size=96)[0]
     rng = np.random.default_rng(3)
-    ball = rng.normal(size=(800, 3))  # sparse: the smoothing closes the gaps between centres
-    ball = 0.3 * ball / np.linalg.norm(ball, axis=1, keepdims=True) * rng.uniform(0, 1, (800, 1)) ** (1 / 3)
+    ball = rng.normal(size=(300, 3))  # sparse: the smoothing closes the gaps between centres
+    ball = 0.3 * ball / np.linalg.norm(ball, axis=1, keepdims=True) * rng.uniform(0, 1, (300, 1)) ** (1 / 3)
     away = cam.R[2]  # the viewing direction
-    centres = np.stack([ball + [0, 0, 0.5], ball + [0, 0, 0.5] + 1.0 * away])  # [2, P, 3], depth 2.6 -> 3.6
+    centres = np.stack([ball + [0, 0, 0.5], ball + [0, 0, 0.5] + 2.0 * away])  # [2, P, 3], depth 2.6 -> 4.6
     dense = rng.normal(size=(20000, 3))
     dense = 0.3 * dense / np.linalg.norm(dense, axis=1, keepdims=True) * rng.uniform(0, 1, (20000, 1)) ** (1 / 3)
     obs = np.zeros((2, 96, 96), bool)
-    for f, shift in enumerate([0.0, 1.0]):
+    for f, shift in enumerate([0.0, 2.0]):
         uv = cam.project(dense + [0, 0, 0.5] + shift * away)[0].astype(int)
         obs[f, uv[:, 1], uv[:, 0]] = True
     sim, _ = R.simulated_masks([cam], centres, [obs])
     ratio_obs, ratio_sim = obs[1].sum() / obs[0].sum(), sim[0][1].sum() / sim[0][0].sum()
-    assert ratio_obs < 0.6  # the object's image shrank by about (2.6 / 3.6)²
-    assert ratio_sim == pytest.approx(ratio_obs, rel=0.1)
+    assert ratio_obs < 0.4  # the object's image shrank by about (2.6 / 4.6)²
+    assert ratio_sim == pytest.approx(ratio_obs, rel=0.1)  # a fixed smoothing and level give 0.46 for 0.34
 
 
 def test_rest_shape_sees_a_permanent_squash_the_simulation_lacks():

@@ -134,7 +134,7 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
     body.append(table(["candidate", "setting", "fitted value", "held-out gain", "future gain", "decision"], rows))
     base = diagnosis["base"]
     body.append(paragraph(
-        f"Observed: {diagnosis['sequence']}. Base D (pixels² per view-frame summed): fitting views "
+        f"Observed: {diagnosis['sequence']}. Base D (pixels², summed over the view-frames): fitting views "
         f"{_g(base['d_fit'])}, held-out views {_g(base['d_held_out'])}, future frames {_g(base['d_future'])}."
     ))  # fmt: skip
     if record is None:
@@ -166,7 +166,8 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
         f"frames, {_g(com['rms_error_future'])} over the future frames; object size {_g(com['size'])}. "
         "Both columns use the same estimator, so compare them with each other, not with the truth: a free fall "
         "slower than gravity in the images but not in the simulation points at drag or a weaker gravity; a rest "
-        "shape that changes in the images only points at plasticity. " + " ".join(f"Not computed: {n}." for n in notes)
+        "shape that changes in the images only points at plasticity (the ratios compare rest shapes only when the "
+        "speed at the last frame is near zero; else they compare poses). " + " ".join(f"Not computed: {n}." for n in notes)
     ))  # fmt: skip
     body.append(image(plots["spatial"], "where the silhouettes disagree",
                       "Views that disagree most (title: mean |observed XOR simulated| / observed area over the frames "

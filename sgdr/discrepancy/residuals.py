@@ -101,8 +101,7 @@ def centroids(masks: list) -> tuple[np.ndarray, np.ndarray]:
             if rows.size == 0:
                 continue
             uv[v, f] = cols.mean() + 0.5, rows.mean() + 0.5
-            h, w = m.shape[1:]
-            ok[v, f] = rows.min() > 0 and cols.min() > 0 and rows.max() < h - 1 and cols.max() < w - 1
+            ok[v, f] = _inside(m[f])
     return uv, ok
 
 

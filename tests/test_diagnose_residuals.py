@@ -58,11 +58,16 @@ def test_parabola_recovers_gravity_and_the_drag_fit_flags_a_slower_fall():
     assert ff["frames"] == 9 and ff["reason"] is None
     assert ff["acceleration"] == pytest.approx(7.0, rel=1e-6) and ff["ratio"] == pytest.approx(7.0 / 9.8, rel=1e-6)
     assert ff["rms_parabola"] < 1e-9
+    assert ff["horizontal_drag_per_s"] == pytest.approx(0.0, abs=1e-3)  # a weaker gravity leaves it uniform
     x[:, 2] = 1.0 - fall(t, 0.0, 0.4, 9.8, 3.0)  # the recorded gravity with drag 3/s
+    x[:, 0] = fall(t, 0.0, 0.1, 0.0, 3.0)  # that slows the horizontal motion too
     ff = R.free_flight(x, G, FPS, hit_frame=9)
     assert ff["drag_per_s"] == pytest.approx(3.0, rel=1e-3)
+    assert ff["horizontal_drag_per_s"] == pytest.approx(3.0, rel=1e-3)
     assert ff["ratio"] < 0.85  # the parabola sees a slower fall
     assert ff["rms_drag"] < 1e-3 * ff["rms_parabola"]  # and only the drag model fits its shape
+    x[:, 0] = 0.0
+    assert R.free_flight(x, G, FPS, hit_frame=9)["horizontal_reason"]  # a straight drop: no horizontal fit
     x[:, 2] = 1.0 - fall(t, 0.0, 0.4, 9.8, 0.0)
     assert abs(R.free_flight(x, G, FPS, hit_frame=9)["drag_per_s"]) < 1e-3
     # frames at and after the hit are not free fall; too few frames give a reason, not numbers

@@ -151,6 +151,8 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
         ("free fall: acceleration / recorded gravity", lambda n: ff[n]["ratio"]),
         ("free fall: linear drag at recorded gravity (1/s)", lambda n: ff[n]["drag_per_s"]),
         ("free fall: rms residual of the parabola (scene units)", lambda n: ff[n]["rms_parabola"]),
+        ("free flight: horizontal speed (scene units / s)", lambda n: ff[n]["horizontal_speed"]),
+        ("free flight: linear drag of the horizontal motion (1/s)", lambda n: ff[n]["horizontal_drag_per_s"]),
         ("bounce apex above the contact (scene units)", lambda n: ct[n]["bounce"]),
         ("sliding after the hit frame (scene units)", lambda n: ct[n]["sliding"]),
         ("rest shape: area last / first frame (median over views)", lambda n: rs[f"area_{n}"]),
@@ -165,7 +167,8 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
         f"Centre-of-mass error (observed - simulated, triangulated): rms {_g(com['rms_error_fit'])} over the fit "
         f"frames, {_g(com['rms_error_future'])} over the future frames; object size {_g(com['size'])}. "
         "Both columns use the same estimator, so compare them with each other, not with the truth: a free fall "
-        "slower than gravity in the images but not in the simulation points at drag or a weaker gravity; a rest "
+        "slower than gravity in the images but not in the simulation points at drag or a weaker gravity (drag also "
+        "slows the horizontal motion; a weaker gravity does not); a rest "
         "shape that changes in the images only points at plasticity (the ratios compare rest shapes only when the "
         "speed at the last frame is near zero; else they compare poses). " + " ".join(f"Not computed: {n}." for n in notes)
     ))  # fmt: skip

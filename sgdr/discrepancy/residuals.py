@@ -155,24 +155,43 @@ def _drag_basis(t: np.ndarray, c: float) -> tuple[np.ndarray, np.ndarray]:
     return phi, (t - phi) / c
 
 
-def free_flight(x: np.ndarray, gravity, fps: float, hit_frame: int) -> dict:
-    """Gravity and drag seen in the fall of x [T, 3] over the frames before `hit_frame`.
-
-    Two fits along the recorded gravity direction ĝ of s(t) = x(t)·ĝ, t = frame / fps:
-      parabola  s = s0 + v0 t + a t²/2 (free a): `acceleration` a and `ratio` a / |g|
-      drag      dv/dt = |g| - c v (|g| fixed, bounded scalar search of c over DRAG_RANGE):
-                `drag_per_s` c, the linear drag that explains the fall with the recorded gravity
-    and each fit's rms residual (scene units). A slower fall than gravity shows as ratio < 1
-    and c > 0 in both; the shape of the speed decay (drag grows with speed) separates them only
-    when the parabola's residual is well above the drag fit's. Frames without a finite x are
-    left out; fewer than 3 give {"reason": ...} and None values."""
+def _drag_fit(t: np.ndarray, s: np.ndarray, g: float) -> tuple[float, float]:
+    """(c, rms residual) of s = s0 + v0 φ(t; c) + g ψ(t; c) (`_drag_basis`), s0 and v0 by linear
+    least squares for each c, c by a bounded scalar search over DRAG_RANGE."""
     from scipy.optimize import minimize_scalar
 
+    def mse(c):
+        phi, psi = _drag_basis(t, float(c))
+        basis = np.stack([np.ones_like(t), phi], axis=1)
+        k, *_ = np.linalg.lstsq(basis, s - g * psi, rcond=None)
+        return float(np.mean((basis @ k + g * psi - s) ** 2))
+
+    res = minimize_scalar(mse, bounds=DRAG_RANGE, method="bounded", options={"xatol": 1e-4})
+    return float(res.x), float(np.sqrt(mse(res.x)))
+
+
+def free_flight(x: np.ndarray, gravity, fps: float, hit_frame: int) -> dict:
+    """Gravity and drag seen in the flight of x [T, 3] over the frames before `hit_frame`.
+
+    Along the recorded gravity direction ĝ, s(t) = x(t)·ĝ with t = frame / fps:
+      parabola  s = s0 + v0 t + a t²/2 (free a): `acceleration` a and `ratio` a / |g|
+      drag      dv/dt = |g| - c v (|g| fixed): `drag_per_s` c, the linear drag that explains the
+                fall with the recorded gravity
+    and across it (the horizontal travel's direction, no gravity there):
+      drag      dv/dt = -c v: `horizontal_drag_per_s`, and `horizontal_speed` (travel / time)
+    with each fit's rms residual (scene units). A slower fall than gravity shows as ratio < 1 and
+    c > 0 whatever slows it; drag also slows the horizontal motion, a weaker gravity does not,
+    so the horizontal c tells them apart when the object travels sideways (needs 4 frames and a
+    travel of at least 3 x the parabola's rms residual, the estimator's noise; else None and
+    `horizontal_reason`). Frames without a finite x are left out; fewer than 3 give
+    {"reason": ...} and None values."""
     g = np.asarray(gravity, float)
     g_norm = float(np.linalg.norm(g))
     frames = np.arange(min(int(hit_frame), x.shape[0]))
     frames = frames[np.all(np.isfinite(x[frames]), axis=1)] if frames.size else frames
-    empty = {k: None for k in ("acceleration", "ratio", "rms_parabola", "drag_per_s", "rms_drag")}
+    keys = ("acceleration", "ratio", "rms_parabola", "drag_per_s", "rms_drag", "horizontal_speed",
+            "horizontal_drag_per_s", "rms_horizontal", "horizontal_reason")  # fmt: skip
+    empty = {k: None for k in keys}
     if g_norm == 0.0:
         return {**empty, "frames": int(frames.size), "reason": "the sequence records no gravity"}
     if frames.size < 3:
@@ -182,27 +201,31 @@ def free_flight(x: np.ndarray, gravity, fps: float, hit_frame: int) -> dict:
             "reason": f"{frames.size} usable frame(s) before the hit frame {hit_frame}; the fits need 3",
         }
     t = frames / float(fps)
-    s = x[frames] @ (g / g_norm)
+    down = g / g_norm
+    s = x[frames] @ down
     design = np.stack([np.ones_like(t), t, t**2 / 2], axis=1)
     coef, *_ = np.linalg.lstsq(design, s, rcond=None)
     rms_parabola = float(np.sqrt(np.mean((design @ coef - s) ** 2)))
-
-    def drag_residual(c):
-        phi, psi = _drag_basis(t, float(c))
-        basis = np.stack([np.ones_like(t), phi], axis=1)
-        k, *_ = np.linalg.lstsq(basis, s - g_norm * psi, rcond=None)
-        return float(np.mean((basis @ k + g_norm * psi - s) ** 2))
-
-    res = minimize_scalar(drag_residual, bounds=DRAG_RANGE, method="bounded", options={"xatol": 1e-4})
-    return {
+    c, rms_drag = _drag_fit(t, s, g_norm)
+    out = {
+        **empty,
         "frames": int(frames.size),
         "acceleration": float(coef[2]),
         "ratio": float(coef[2]) / g_norm,
         "rms_parabola": rms_parabola,
-        "drag_per_s": float(res.x),
-        "rms_drag": float(np.sqrt(drag_residual(res.x))),
+        "drag_per_s": c,
+        "rms_drag": rms_drag,
         "reason": None,
     }
+    flat = x[frames] - np.outer(s, down)
+    travel = float(np.linalg.norm(flat[-1] - flat[0]))
+    out["horizontal_speed"] = travel / float(t[-1] - t[0])
+    if frames.size < 4 or travel <= 3.0 * rms_parabola or travel == 0.0:
+        out["horizontal_reason"] = f"horizontal travel {travel:.3g} over {frames.size} frames: too little to fit"
+        return out
+    side = (flat - flat[0]) @ ((flat[-1] - flat[0]) / travel)
+    out["horizontal_drag_per_s"], out["rms_horizontal"] = _drag_fit(t, side, 0.0)
+    return out
 
 
 # ---------------------------------------------------------------------- contact
@@ -427,6 +450,7 @@ def summary(record: dict) -> dict:
     for name in ("observed", "simulated"):
         out[f"gravity_ratio_{name}"] = ff[name]["ratio"]
         out[f"drag_per_s_{name}"] = ff[name]["drag_per_s"]
+        out[f"horizontal_drag_per_s_{name}"] = ff[name]["horizontal_drag_per_s"]
         out[f"bounce_{name}"] = ct[name]["bounce"]
         out[f"sliding_{name}"] = ct[name]["sliding"]
     out["free_flight_reason"] = ff["observed"]["reason"]

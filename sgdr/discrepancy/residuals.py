@@ -11,14 +11,16 @@ Inputs: the observed silhouettes (alpha > 0.5) of every view and frame, and the 
 bound Gaussian centres (all of them, the asset's IDW binding). The simulated silhouette of a view
 is where the projected centres are dense (their per-pixel count, smoothed): the density level of
 each view is chosen so that the simulated area at frame 0 (the rest state, fitted by the static
-stage) equals the observed one (`simulated_masks`). Outputs (one dict per part, strict-JSON ready after `strict_values`):
+stage) equals the observed one (`simulated_masks`). Outputs (`residual_diagnostics`, one dict per
+part, strict-JSON ready after `strict_values`):
 
   d_matrix     D [V, T] of the base fit (pixels², the diagnosis's Chamfer D; frame 0 is None)
   com          centre-of-mass trajectories [T, 3] (world, scene units): the observed and the
                simulated one triangulated the same way from silhouette centroids, and the
                simulated anchors' mean; their heights above the recorded ground and horizontal
                displacements from frame 0
-  free_flight  a parabola and a linear-drag fit along gravity over the frames before the hit
+  free_flight  a parabola and a linear-drag fit along gravity, and a drag fit of the horizontal
+               motion, over the frames before the hit
   rest_shape   per view, mask area and extents of the last frame over frame 0
   contact      bounce apex and sliding distance after the first contact
   spatial      per view, where over the frames the silhouettes disagree (coarse maps)

@@ -66,8 +66,17 @@ def test_parabola_recovers_gravity_and_the_drag_fit_flags_a_slower_fall():
     assert ff["horizontal_drag_per_s"] == pytest.approx(3.0, rel=1e-3)
     assert ff["ratio"] < 0.85  # the parabola sees a slower fall
     assert ff["rms_drag"] < 1e-3 * ff["rms_parabola"]  # and only the drag model fits its shape
-    x[:, 0] = 0.0
-    assert R.free_flight(x, G, FPS, hit_frame=9)["horizontal_reason"]  # a straight drop: no horizontal fit
+    # with noise: the 95% intervals hold the truth; a fast sideways motion pins the drag down, a
+    # slow one does not
+    rng = np.random.default_rng(4)
+    for speed, narrow in ((3.0, True), (0.02, False)):
+        y = x.copy()
+        y[:, 0] = fall(t, 0.0, speed, 0.0, 3.0)
+        y = y + rng.normal(0, 1e-4, y.shape)
+        ff = R.free_flight(y, G, FPS, hit_frame=9)
+        lo, hi = ff["horizontal_drag_interval"]
+        assert lo <= 3.0 <= hi and ff["drag_interval"][0] <= 3.0 <= ff["drag_interval"][1], ff
+        assert (hi - lo < 2.0) == narrow, ff
     x[:, 2] = 1.0 - fall(t, 0.0, 0.4, 9.8, 0.0)
     assert abs(R.free_flight(x, G, FPS, hit_frame=9)["drag_per_s"]) < 1e-3
     # frames at and after the hit are not free fall; too few frames give a reason, not numbers

@@ -120,6 +120,12 @@ def _g(x, digits: int = 3) -> str:
     return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f"{x:.{digits}g}"
 
 
+def _ci(fit: dict, key: str) -> str:
+    """'c [low, high]' of a free-flight drag fit ('-' when not fitted)."""
+    c, interval = fit[f"{key}_per_s"], fit[f"{key}_interval"]
+    return _g(c) + (f" [{_g(interval[0])}, {_g(interval[1])}]" if interval else "")
+
+
 def section(diagnosis: dict, record: dict | None, plots: dict | None):
     """The report's 'Model discrepancy' section: the decision and candidates, then the residuals
     (when computed). diagnosis and record are strict-JSON dicts (None for missing numbers)."""
@@ -149,10 +155,10 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
     rows = []
     for label, get in (
         ("free fall: acceleration / recorded gravity", lambda n: ff[n]["ratio"]),
-        ("free fall: linear drag at recorded gravity (1/s)", lambda n: ff[n]["drag_per_s"]),
+        ("free fall: linear drag at recorded gravity (1/s) [95%]", lambda n: _ci(ff[n], "drag")),
         ("free fall: rms residual of the parabola (scene units)", lambda n: ff[n]["rms_parabola"]),
         ("free flight: horizontal speed (scene units / s)", lambda n: ff[n]["horizontal_speed"]),
-        ("free flight: linear drag of the horizontal motion (1/s)", lambda n: ff[n]["horizontal_drag_per_s"]),
+        ("free flight: linear drag of the horizontal motion (1/s) [95%]", lambda n: _ci(ff[n], "horizontal_drag")),
         ("bounce apex above the contact (scene units)", lambda n: ct[n]["bounce"]),
         ("sliding after the hit frame (scene units)", lambda n: ct[n]["sliding"]),
         ("rest shape: area last / first frame (median over views)", lambda n: rs[f"area_{n}"]),
@@ -160,7 +166,7 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
         ("rest shape: width last / first frame", lambda n: rs[f"width_{n}"]),
         ("speed at the last frame (scene units / s)", lambda n: com[f"speed_last_{n}"]),
     ):
-        rows.append([label, _g(get("observed")), _g(get("simulated"))])
+        rows.append([label, *(v if isinstance(v, str) else _g(v) for v in (get("observed"), get("simulated")))])
     body.append(table(["quantity", "observed", "simulated"], rows))
     notes = [r for r in (ff["observed"]["reason"], ct["observed"]["reason"]) if r]
     body.append(paragraph(

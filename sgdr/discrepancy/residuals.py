@@ -157,9 +157,13 @@ def _drag_basis(t: np.ndarray, c: float) -> tuple[np.ndarray, np.ndarray]:
     return phi, (t - phi) / c
 
 
-def _drag_fit(t: np.ndarray, s: np.ndarray, g: float) -> tuple[float, float]:
-    """(c, rms residual) of s = s0 + v0 φ(t; c) + g ψ(t; c) (`_drag_basis`), s0 and v0 by linear
-    least squares for each c, c by a bounded scalar search over DRAG_RANGE."""
+def _drag_fit(t: np.ndarray, s: np.ndarray, g: float, sigma2: float | None) -> tuple[float, float, list | None]:
+    """(c, rms residual, [low, high] or None) of s = s0 + v0 φ(t; c) + g ψ(t; c) (`_drag_basis`):
+    s0 and v0 by linear least squares for each c, c by a bounded scalar search over DRAG_RANGE.
+
+    The interval is the profile-likelihood 95% interval for a noise variance sigma2: the c on a
+    grid over DRAG_RANGE whose sum of squares exceeds the best one by at most 3.84 sigma2 (Δχ² for
+    one parameter); an end at a DRAG_RANGE bound means unbounded. None without sigma2."""
     from scipy.optimize import minimize_scalar
 
     def mse(c):
@@ -169,7 +173,12 @@ def _drag_fit(t: np.ndarray, s: np.ndarray, g: float) -> tuple[float, float]:
         return float(np.mean((basis @ k + g * psi - s) ** 2))
 
     res = minimize_scalar(mse, bounds=DRAG_RANGE, method="bounded", options={"xatol": 1e-4})
-    return float(res.x), float(np.sqrt(mse(res.x)))
+    best = mse(res.x)
+    if sigma2 is None:
+        return float(res.x), float(np.sqrt(best)), None
+    grid = np.append(np.linspace(*DRAG_RANGE, 401), res.x)
+    inside = grid[[t.size * (mse(c) - best) <= 3.84 * sigma2 for c in grid]]
+    return float(res.x), float(np.sqrt(best)), [float(inside.min()), float(inside.max())]
 
 
 def free_flight(x: np.ndarray, gravity, fps: float, hit_frame: int) -> dict:
@@ -179,20 +188,22 @@ def free_flight(x: np.ndarray, gravity, fps: float, hit_frame: int) -> dict:
       parabola  s = s0 + v0 t + a t²/2 (free a): `acceleration` a and `ratio` a / |g|
       drag      dv/dt = |g| - c v (|g| fixed): `drag_per_s` c, the linear drag that explains the
                 fall with the recorded gravity
-    and across it (the horizontal travel's direction, no gravity there):
+    and across it (along the horizontal travel, no gravity there):
       drag      dv/dt = -c v: `horizontal_drag_per_s`, and `horizontal_speed` (travel / time)
-    with each fit's rms residual (scene units). A slower fall than gravity shows as ratio < 1 and
-    c > 0 whatever slows it; drag also slows the horizontal motion, a weaker gravity does not,
-    so the horizontal c tells them apart when the object travels sideways (needs 4 frames and a
-    travel of at least 3 x the parabola's rms residual, the estimator's noise; else None and
-    `horizontal_reason`). Frames without a finite x are left out; fewer than 3 give
-    {"reason": ...} and None values."""
+    with each fit's rms residual (scene units) and, from 4 frames on, a 95% interval for each c
+    (`drag_interval`, `horizontal_drag_interval`; `_drag_fit`) with the noise variance of the
+    parabola's residual (its sum of squares / (frames - 3)): the estimator's own noise, taken
+    as the same in every direction. A slower fall than gravity shows as ratio < 1 and c > 0
+    whatever slows it; drag also slows the horizontal motion, a weaker gravity does not, so the
+    horizontal c tells them apart when its interval is narrow (the object travels sideways far
+    enough). Frames without a finite x are left out; fewer than 3 give {"reason": ...} and None
+    values."""
     g = np.asarray(gravity, float)
     g_norm = float(np.linalg.norm(g))
     frames = np.arange(min(int(hit_frame), x.shape[0]))
     frames = frames[np.all(np.isfinite(x[frames]), axis=1)] if frames.size else frames
-    keys = ("acceleration", "ratio", "rms_parabola", "drag_per_s", "rms_drag", "horizontal_speed",
-            "horizontal_drag_per_s", "rms_horizontal", "horizontal_reason")  # fmt: skip
+    keys = ("acceleration", "ratio", "rms_parabola", "drag_per_s", "drag_interval", "rms_drag", "horizontal_speed",
+            "horizontal_drag_per_s", "horizontal_drag_interval", "rms_horizontal")  # fmt: skip
     empty = {k: None for k in keys}
     if g_norm == 0.0:
         return {**empty, "frames": int(frames.size), "reason": "the sequence records no gravity"}
@@ -207,26 +218,27 @@ def free_flight(x: np.ndarray, gravity, fps: float, hit_frame: int) -> dict:
     s = x[frames] @ down
     design = np.stack([np.ones_like(t), t, t**2 / 2], axis=1)
     coef, *_ = np.linalg.lstsq(design, s, rcond=None)
-    rms_parabola = float(np.sqrt(np.mean((design @ coef - s) ** 2)))
-    c, rms_drag = _drag_fit(t, s, g_norm)
+    sse = float(np.sum((design @ coef - s) ** 2))
+    sigma2 = sse / (frames.size - 3) if frames.size > 3 else None
+    c, rms_drag, interval = _drag_fit(t, s, g_norm, sigma2)
     out = {
         **empty,
         "frames": int(frames.size),
         "acceleration": float(coef[2]),
         "ratio": float(coef[2]) / g_norm,
-        "rms_parabola": rms_parabola,
+        "rms_parabola": float(np.sqrt(sse / frames.size)),
         "drag_per_s": c,
+        "drag_interval": interval,
         "rms_drag": rms_drag,
         "reason": None,
     }
     flat = x[frames] - np.outer(s, down)
     travel = float(np.linalg.norm(flat[-1] - flat[0]))
     out["horizontal_speed"] = travel / float(t[-1] - t[0])
-    if frames.size < 4 or travel <= 3.0 * rms_parabola or travel == 0.0:
-        out["horizontal_reason"] = f"horizontal travel {travel:.3g} over {frames.size} frames: too little to fit"
-        return out
-    side = (flat - flat[0]) @ ((flat[-1] - flat[0]) / travel)
-    out["horizontal_drag_per_s"], out["rms_horizontal"] = _drag_fit(t, side, 0.0)
+    if travel > 0.0:
+        side = (flat - flat[0]) @ ((flat[-1] - flat[0]) / travel)
+        fit = _drag_fit(t, side, 0.0, sigma2)
+        out["horizontal_drag_per_s"], out["rms_horizontal"], out["horizontal_drag_interval"] = fit
     return out
 
 
@@ -452,7 +464,9 @@ def summary(record: dict) -> dict:
     for name in ("observed", "simulated"):
         out[f"gravity_ratio_{name}"] = ff[name]["ratio"]
         out[f"drag_per_s_{name}"] = ff[name]["drag_per_s"]
+        out[f"drag_interval_{name}"] = ff[name]["drag_interval"]
         out[f"horizontal_drag_per_s_{name}"] = ff[name]["horizontal_drag_per_s"]
+        out[f"horizontal_drag_interval_{name}"] = ff[name]["horizontal_drag_interval"]
         out[f"bounce_{name}"] = ct[name]["bounce"]
         out[f"sliding_{name}"] = ct[name]["sliding"]
     out["free_flight_reason"] = ff["observed"]["reason"]

@@ -55,6 +55,7 @@ def diagnose(cfg: DictConfig) -> None:
             for n, v in record["candidates"].items()
         },
         "base_held_out_loss": record["base"]["d_held_out"],
+        "v0_refit": record["v0_refit"],
         "residuals": record.get("residuals"),
         "seconds": round(record["seconds"], 1),
     }

@@ -1,9 +1,11 @@
 """The discrepancy diagnosis (sgdr/discrepancy/) on twins of a tiny reconstruction: effects
 injected into the asset's own model (so only the injected effect separates the twin from the
-asset) are named, the null twin is "none", and the driver prints its JSON line. The residual
-diagnostics of the same diagnoses: on the null twin the observed and simulated free fall agree,
-under strong drag the observed fall is slower and the drag fit finds it; the run's report gains
-the 'Model discrepancy' section and still opens cleanly."""
+asset) are named with their values, the null twin is "none", and the driver prints its JSON
+line. Each injected twin is judged against its own candidate and two that could mimic it (the
+full list runs on the null twin), to keep CI short. The residual diagnostics of the same
+diagnoses: on the null twin the observed and simulated free fall agree, under drag the observed
+fall is slower and the drag fit finds it; the run's report gains the 'Model discrepancy' section
+and still opens cleanly."""
 
 import json
 import subprocess
@@ -42,12 +44,12 @@ def tiny(tmp_path_factory):
     return root, overrides, out.run_dir, size
 
 
-def diagnose(tiny, physics: dict, name: str, *extra):
+def diagnose(tiny, physics: dict, name: str, *extra, fields=None):
     from sgdr.discrepancy.run import run_diagnosis
     from sgdr.posterior.twin import twin_sequence
 
     root, overrides, run_dir, _ = tiny
-    twin = twin_sequence(run_dir / "asset", root / f"twin_{name}", {}, physics=physics)
+    twin = twin_sequence(run_dir / "asset", root / f"twin_{name}", {}, physics=physics, fields=fields)
     cfg = OmegaConf.to_object(
         compose(
             [
@@ -62,10 +64,25 @@ def diagnose(tiny, physics: dict, name: str, *extra):
     return run_diagnosis(cfg)
 
 
+def _named(r, cause):
+    assert r["cause"] == cause, {k: (v["gain"], v["value"]) for k, v in r["candidates"].items()}
+    c = [v for v in r["candidates"].values() if v["decision"] == "cause"][0]
+    assert c["gain"] >= 0.3  # the issue's bar: the held-out error 30% below the base's
+    return c
+
+
 def test_null_twin_names_no_cause(tiny):
-    r = diagnose(tiny, {}, "null")
+    r = diagnose(tiny, {}, "null", "diagnose.evaluations=8")  # every candidate of the default list
+    assert set(r["candidates"]) == {
+        "air_drag",
+        "gravity",
+        "ground_plane",
+        "ground_tilt",
+        "plasticity",
+        "heterogeneous_stiffness",
+    }
     assert r["cause"] == "none", r["candidates"]
-    assert max(c["gain"] for c in r["candidates"].values()) < 0.05  # extra flexibility alone buys little
+    assert max(c["gain"] for c in r["candidates"].values()) < 0.5 * r["min_gain"]  # flexibility alone buys little
     assert json.loads(Path(r["file"]).read_text())["cause"] == "none"
     res = r["residuals"]  # the twin is the asset's own model: the same estimator, the same numbers
     assert abs(res["gravity_ratio_observed"] - 1.0) < 0.1 and abs(res["gravity_ratio_simulated"] - 1.0) < 0.1, res
@@ -82,34 +99,59 @@ def test_null_twin_names_no_cause(tiny):
 
 def test_a_moved_ground_is_named_with_its_offset(tiny):
     _, _, _, size = tiny
-    offset = 0.1 * size
-    r = diagnose(tiny, {"ground_offset": offset}, "ground", "diagnose.min_gain=0.15")
-    assert r["cause"] == "ground_plane", r["candidates"]
-    c = r["candidates"]["ground_plane"]
-    assert c["decision"] == "cause" and 0.3 * offset < c["value"] < 1.5 * offset, c
+    offset = 0.05 * size
+    r = diagnose(tiny, {"ground_offset": offset}, "ground", "diagnose.candidates=[ground_plane,gravity,plasticity]")
+    c = _named(r, "ground_plane")
+    assert c["value"] == pytest.approx(offset, rel=0.2), c
     assert r["truth"]["physics"] == {"ground_offset": offset}  # the twin records the truth, not the sequence
-    assert r["candidates"]["ground_plane"]["gain"] > 2 * max(
-        v["gain"] for k, v in r["candidates"].items() if k != "ground_plane"
+
+
+def test_plasticity_is_named_with_its_yield_strain(tiny):
+    r = diagnose(
+        tiny,
+        {"plastic_yield_strain": 0.005},
+        "plastic",
+        "diagnose.candidates=[plasticity,heterogeneous_stiffness,air_drag]",
     )
+    c = _named(r, "plasticity")
+    assert 10 ** c["value"] == pytest.approx(0.005, rel=0.2), c
+    assert r["candidates"]["plasticity"]["settings"]["physics.plastic_yield_strain"] == pytest.approx(10 ** c["value"])
 
 
-def test_strong_drag_is_explained_by_a_slower_fall_and_the_driver_prints_json(tiny):
+def test_two_stiffnesses_are_named_with_their_ratio_and_axis(tiny):
+    from sgdr.discrepancy.candidates import halves
+    from sgdr.pipeline.asset import load_asset
+
+    _, _, run_dir, _ = tiny
+    asset = load_asset(run_dir / "asset")
+    field = np.asarray(asset.values["log10_k"], float) + 0.4 * halves(np.asarray(asset.anchors), 0)  # ratio 10^0.8
+    r = diagnose(
+        tiny,
+        {},
+        "hetero",
+        "diagnose.candidates=[heterogeneous_stiffness,plasticity,gravity]",
+        fields={"log10_k": field},
+    )
+    c = _named(r, "heterogeneous_stiffness")
+    assert c["value"] == pytest.approx(0.8, abs=0.15) and c["variant"] == 0, c
+
+
+def test_drag_is_named_and_the_driver_prints_json(tiny):
     root, overrides, run_dir, _ = tiny
     from sgdr.posterior.twin import twin_sequence
 
-    twin = twin_sequence(run_dir / "asset", root / "twin_drag", {}, physics={"air_drag": 6.0})
+    twin = twin_sequence(run_dir / "asset", root / "twin_drag", {}, physics={"air_drag": 4.0})
     proc = subprocess.run(
         [sys.executable, "experiments/diagnose.py", *overrides, f"diagnose.run={run_dir}", f"diagnose.sequence={twin}",
-         f"diagnose.out_dir={root / 'drag'}", "diagnose.min_gain=0.15"],
+         f"diagnose.out_dir={root / 'drag'}", "diagnose.candidates=[air_drag,gravity,ground_plane]"],
         cwd=ROOT, capture_output=True, text=True,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-3000:]
     last = json.loads(proc.stdout.strip().splitlines()[-1])
-    # at 32 px and 7 fit frames drag and a weaker gravity are confounded (docs/discrepancy.md):
-    # either slows the fall; the ground does not
-    assert last["cause"] in ("air_drag", "gravity"), last
-    assert last["candidates"]["air_drag"]["value"] > 1.0
-    assert last["candidates"]["ground_plane"]["gain"] < last["candidates"][last["cause"]]["gain"]
-    res = last["residuals"]  # drag 6/s: the images fall slower than the base model, and drag fits that
-    assert res["gravity_ratio_observed"] < res["gravity_ratio_simulated"] - 0.3, res
-    assert 3.0 < res["drag_per_s_observed"] < 9.0 and res["drag_per_s_simulated"] < 1.0, res
+    assert last["cause"] == "air_drag", last
+    assert last["v0_refit"] is False  # a twin shares the asset's v0: nothing to refit
+    assert last["candidates"]["air_drag"]["value"] == pytest.approx(4.0, rel=0.25)
+    assert last["candidates"]["air_drag"]["gain"] >= 0.3
+    res = last["residuals"]  # drag 4/s: the images fall slower than the base model, and drag fits that
+    assert res["gravity_ratio_observed"] < res["gravity_ratio_simulated"] - 0.2, res
+    assert 2.0 < res["drag_per_s_observed"] < 6.0 and res["drag_per_s_simulated"] < 1.0, res

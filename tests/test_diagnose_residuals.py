@@ -227,6 +227,7 @@ def test_record_is_strict_json_and_the_plots_are_written(tmp_path, n_views, n_fr
         assert ff["observed"]["ratio"] == pytest.approx(ff["simulated"]["ratio"], abs=0.02)
         assert ff["observed"]["ratio"] == pytest.approx(1.0, abs=0.1)
     diagnosis = {"cause": "none", "min_gain": 0.1, "sequence": "synthetic", "candidates": {},
-                 "base": {"d_fit": 1.0, "d_held_out": 1.0, "d_future": None}}  # fmt: skip
+                 "base": {"d_fit": 1.0, "d_held_out": 1.0, "d_future": None},
+                 "discrepancy": {"measure": "points", "unit": "pixels²"}}  # fmt: skip
     html = section(diagnosis, record, {k: str(v) for k, v in plots.items()}).body
     assert "data:image/png;base64," in html and "Model discrepancy" not in html  # the title is the report's

@@ -1,5 +1,5 @@
 """The model extensions (sgdr/physics/extensions.py: air drag, gravity scale, moved and tilted
-ground): the null values are the base model bit for bit, each matches the float64 twin, each
+ground, spring plasticity): the null values are the base model bit for bit, each matches the float64 twin, each
 does what it says on a scene where the answer is known, and the gather adjoint still equals
 recorded AD with all of them on."""
 
@@ -18,6 +18,7 @@ EXTENSIONS = {
     "gravity_scale": {"gravity_scale": 0.8},
     "ground_offset": {"ground_offset": 0.04},
     "ground_tilt": {"ground_tilt_deg": 6.0, "ground_tilt_azimuth_deg": 30.0},
+    "plasticity": {"plastic_yield_strain": 0.01},
     "all": {"air_drag": 1.5, "gravity_scale": 1.2, "ground_offset": -0.02, "ground_tilt_deg": 4.0},
 }
 GROUND = Ground([0.0, 0.0, 0.28], [0.05, 0.0, 1.0])
@@ -59,7 +60,13 @@ def test_null_values_are_the_base_model_exactly():
     model, params, state0, cfg = _scene()
     base = _final(model, params, state0, cfg)
     nulls = replace(
-        cfg, air_drag=0.0, gravity_scale=1.0, ground_offset=0.0, ground_tilt_deg=0.0, ground_tilt_azimuth_deg=77.0
+        cfg,
+        air_drag=0.0,
+        gravity_scale=1.0,
+        ground_offset=0.0,
+        ground_tilt_deg=0.0,
+        ground_tilt_azimuth_deg=77.0,
+        plastic_yield_strain=0.0,
     )
     for a, b in zip(base, _final(model, params, state0, nulls)):
         np.testing.assert_array_equal(a, b)
@@ -136,3 +143,57 @@ def test_gather_adjoint_equals_recorded_ad_with_every_extension_on(contact):
         scale = np.abs(ref).max()
         assert scale > 0, name
         assert np.abs(gather[name] - ref).max() <= 1e-5 * scale, name
+
+
+def _size(x):
+    return float(np.linalg.norm(x - x.mean(0), axis=1).mean())
+
+
+@pytest.mark.parametrize("springs", ["directed", "symmetric"])
+def test_plasticity_keeps_a_compression_beyond_the_yield_strain(springs):
+    # no gravity, no ground: an object squeezed to 80% of its size and released springs back
+    # when elastic, and keeps 0.8 / (1 - eps) of its size when its springs yield at strain eps
+    far = Ground([0.0, 0.0, -100.0], [0.0, 0.0, 1.0])
+    rng = np.random.default_rng(2)
+    x_rest = rng.uniform(0.3, 0.7, (40, 3))
+    cfg = PhysicsConfig(springs=springs, n_c=12, log10_k_init=2.0, zeta0=2.0)
+    model = build_spring_model(x_rest, 12, cfg)
+    params = PhysParams.init(model, cfg, v0=(0.0, 0.0, 0.0), gravity=(0.0, 0.0, 0.0))
+    centre = x_rest.mean(0)
+    squeezed = SimState.from_numpy(centre + 0.8 * (x_rest - centre), np.zeros_like(x_rest))
+    rest = _size(x_rest)
+    elastic = rollout(model, params, squeezed, far, 40, 1 / 30, cfg, n_substeps=50)[-1].numpy()[0]
+    assert _size(elastic) / rest == pytest.approx(1.0, abs=0.01)
+    eps = 0.05
+    states = rollout(model, params, squeezed, far, 40, 1 / 30, replace(cfg, plastic_yield_strain=eps), n_substeps=50)
+    plastic = states[-1].numpy()[0]
+    assert _size(plastic) / rest == pytest.approx(0.8 / (1 - eps), abs=0.01)
+    lengths = np.linalg.norm(plastic[:, None] - plastic[R.model_numpy(model)["spring_j"]], axis=-1)
+    final_rest = np.asarray(states[-1].rest.numpy(), np.float64).reshape(lengths.shape)
+    assert np.abs(lengths / final_rest - 1).max() <= eps + 1e-4  # no spring strained beyond the yield
+
+
+def test_plasticity_gradients_recorded_ad_against_finite_differences_and_gather_refuses():
+    from sgdr.physics.model import PhysicsInputError
+
+    def loss(log10_k, adjoint="recorded", grad=True):
+        model, params, state0, cfg = _scene("project", plastic_yield_strain=0.01)
+        cfg = replace(cfg, adjoint=adjoint)
+        params.log10_k = type(params.log10_k)(np.full(40, log10_k, np.float32))
+        if grad:
+            dr.enable_grad(params.log10_k)
+        states = rollout(model, params, state0, GROUND, 3, 1 / 30, cfg, n_substeps=20)
+        x = states[-1].x
+        value = dr.sum(dr.squared_norm(x - dr.mean(x, axis=None)))
+        if grad:
+            dr.backward(value)
+            return float(value[0]), float(dr.sum(dr.grad(params.log10_k))[0])
+        return float(value[0])
+
+    _, g = loss(1.5)
+    h = 0.02
+    fd = (loss(1.5 + h, grad=False) - loss(1.5 - h, grad=False)) / (2 * h)
+    assert g == pytest.approx(fd, rel=0.05, abs=1e-6)
+    assert abs(fd) > 1e-5  # the stiffness acts on this loss
+    with pytest.raises(PhysicsInputError, match="physics.adjoint=recorded"):
+        loss(1.5, adjoint="gather")

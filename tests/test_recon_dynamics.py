@@ -274,3 +274,24 @@ def test_no_soft_vector_keeps_kappa_and_weighs_every_spring_fully(scene):
     assert res.eval_loss_final < res.eval_loss_initial
     with_soft = _fit(s, replace(pcfg, soft_vector=True), cfg)
     assert abs(with_soft.kappa - 1.3) > 0.05  # κ is learned when the soft vector is on (lr_kappa 0.5)
+
+
+def test_a_non_finite_gradient_skips_the_adam_step_and_leaves_the_parameters_finite():
+    import drjit as dr
+
+    from sgdr.backend import ad
+    from sgdr.identify.adam import make_adam
+    from sgdr.identify.dynamics import finite_step
+
+    t = ad()
+    cfg = ReconConfig()
+    opt = make_adam(
+        {"log10_k": (t.Float(3.0, 3.0), 0.1), "friction": (t.Float(0.5), 0.1), "kappa": (t.Float(0.5), 0.1)}
+    )
+    dr.backward(dr.sqrt(opt["kappa"] - 0.5))  # an infinite gradient at the current value
+    assert finite_step(opt, cfg) is False
+    assert float(opt["kappa"][0]) == pytest.approx(0.5)
+    assert np.all(np.isfinite(opt["log10_k"].numpy()))
+    dr.backward(opt["kappa"] * opt["kappa"])  # the next, finite gradient steps as usual
+    assert finite_step(opt, cfg) is True
+    assert float(opt["kappa"][0]) == pytest.approx(0.4, abs=1e-4)

@@ -1,25 +1,36 @@
 """The candidate extensions a diagnosis fits, and how one is fitted and judged.
 
-Each candidate (`CANDIDATES`, a registry) names the cause it stands for, the `physics.*` setting
-it frees (`sgdr.physics.extensions`; the setting's null value is the base model) and the search
-interval. A candidate is fitted from the base fit: every identified parameter is kept, and only
-the extension's one value is searched (scipy's bounded Brent search, `diagnose.evaluations`
-rollouts) to minimise the silhouette discrepancy D (`sgdr.posterior.likelihood.discrepancy`, the
-symmetric Chamfer distance between silhouettes and projected Gaussian centres, pixels²) summed
-over the *fitting* views. It is judged on the *held-out* views (every other view; never used for
-the fit) by its gain over the base (`sgdr.discrepancy.run`).
+Each candidate (`CANDIDATES`, a registry) names the cause it stands for and the few values it
+frees (`Param`s, searched within bounds; every one's 0 or 1 null is the base model). Its `apply`
+turns those values into `physics.*` settings (`sgdr.physics.extensions`) and replacements of the
+asset's identified values (e.g. a stiffness field). A candidate is fitted from the base fit: the
+identified parameters are kept, only its own values are searched (scipy's bounded Brent search
+for one value, bounded Powell for several; `diagnose.evaluations` rollouts per value) to
+minimise the discrepancy D (`diagnose.discrepancy`, `sgdr.discrepancy.measures`: by default the
+mean absolute difference between the sequence's images and the asset rendered from the rollout)
+summed over the *fitting* views. It is judged on the *held-out* views (every other view; never used for the
+fit) by its gain over the base (`sgdr.discrepancy.run`).
+
+The initial velocity is refitted with every candidate that changes the free fall (gravity, drag)
+when the diagnosis observes the run's own sequence: the pipeline fitted v0 to its frames before
+the hit frame under the base model's free fall, so a weaker gravity fitted alone would be judged
+with a v0 that compensated for it. On another sequence (a twin simulated from the asset, whose
+v0 it shares) the asset's v0 is kept. The fall is rigid
+and closed-form (`sgdr.identify.velocity`), so the v0 that keeps the base's pre-hit trajectory
+under the candidate's gravity and drag is a least-squares solve, not a search (`refit_v0`).
 
 Why held-out views: one more free value always lowers the fitting loss a little; what transfers
 to views the search never saw is what the data ask for. The threshold `diagnose.min_gain` is the
 flexibility guard, calibrated on null data (docs/discrepancy.md).
 
-Interval: the values the search evaluated whose fitting D lies within 5% of the best one (a
-profile interval; coarse, from the search's own points).
+Interval: per value, the range of the values the search evaluated whose fitting D lies within 5%
+of the best one (a profile interval; coarse, from the search's own points).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -27,53 +38,173 @@ from sgdr.registry import Registry
 
 
 @dataclass(frozen=True)
+class Param:
+    name: str  # the fitted value's name (diagnosis.json "values")
+    low: float  # search interval, in object sizes when `relative`
+    high: float
+    relative: bool = False  # a length: the interval is in units of the object's size
+    null: float = 0.0  # the value that gives the base model (where the search starts)
+
+
+@dataclass
+class Context:
+    """What a candidate's `apply` may use: the asset's identified values and physics, the object's
+    size, its rest anchors, and the free-fall frame times the pipeline fitted v0 on."""
+
+    values: dict  # Asset.values (log10_k [N_A], kappa, friction, restitution, v0 [3], gravity [3])
+    physics: object  # the asset's PhysicsConfig
+    anchors: np.ndarray  # [N_A, 3] rest anchors
+    size: float  # the anchors' bounding-box diagonal, scene units
+    free_fall_times: np.ndarray  # [F] seconds of frames 1 .. hit_frame - 1
+
+
+@dataclass(frozen=True)
 class Candidate:
     cause: str  # the cause it stands for (diagnosis.json "cause")
-    setting: str  # the physics.* setting it frees
-    low: float  # search interval; in object sizes when `relative`
-    high: float
-    relative: bool = False  # the interval is in units of the object's size (lengths)
+    params: tuple  # Param, ...
+    apply: Callable  # (Context, {name: value}, variant) -> (physics settings, value replacements)
+    describes: str  # what it changes, for diagnosis.json and the docs
+    variants: tuple = (None,)  # discrete choices fitted one by one, the best fitting kept (e.g. an axis)
+
+
+def _fall_basis(c: float, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(φ, ψ) with x(t) = x0 + v0 φ(t) + g ψ(t) under linear drag c (1/s); c = 0: (t, t²/2)."""
+    if c * float(np.max(t, initial=0.0)) < 1e-6:
+        return t, 0.5 * t * t
+    phi = -np.expm1(-c * t) / c
+    return phi, (t - phi) / c
+
+
+def refit_v0(ctx: Context, gravity_scale: float, air_drag: float) -> np.ndarray:
+    """The v0 [3] whose free fall under (gravity_scale, air_drag) best matches, in least squares
+    over the pre-hit frames, the base model's free fall with the identified v0 (module docstring);
+    the identified v0 when there is no free-fall frame."""
+    v0 = np.asarray(ctx.values["v0"], float).reshape(3)
+    t = np.asarray(ctx.free_fall_times, float)
+    if t.size == 0:
+        return v0
+    g = np.asarray(ctx.values["gravity"], float).reshape(3)
+    phi0, psi0 = _fall_basis(float(ctx.physics.air_drag), t)
+    target = phi0[:, None] * v0 + float(ctx.physics.gravity_scale) * psi0[:, None] * g
+    phi, psi = _fall_basis(float(air_drag), t)
+    rest = target - float(gravity_scale) * psi[:, None] * g
+    return (phi @ rest) / float(phi @ phi)
+
+
+def _free_fall(setting: str):
+    def apply(ctx: Context, x: dict, _variant):
+        settings = {setting: float(x["value"])}
+        scale = settings.get("gravity_scale", float(ctx.physics.gravity_scale))
+        drag = settings.get("air_drag", float(ctx.physics.air_drag))
+        return settings, {"v0": refit_v0(ctx, scale, drag)}
+
+    return apply
+
+
+def _ground_offset(ctx: Context, x: dict, _variant):
+    return {"ground_offset": float(ctx.physics.ground_offset) + float(x["offset"])}, {}
+
+
+def _ground_tilt(ctx: Context, x: dict, _variant):
+    """A tilt vector (degrees towards the plane's axes a and b, `sgdr.physics.extensions`) and an offset."""
+    ta, tb = float(x["tilt_a_deg"]), float(x["tilt_b_deg"])
+    return {
+        "ground_offset": float(ctx.physics.ground_offset) + float(x["offset"]),
+        "ground_tilt_deg": float(np.hypot(ta, tb)),
+        "ground_tilt_azimuth_deg": float(np.degrees(np.arctan2(tb, ta))),
+    }, {}
+
+
+def halves(anchors: np.ndarray, axis: int) -> np.ndarray:
+    """+1 for the anchors above the median along world `axis`, -1 below (the generator's split)."""
+    a = np.asarray(anchors, float)[:, axis]
+    return np.where(a > np.median(a), 1.0, -1.0)
+
+
+def _two_stiffnesses(ctx: Context, x: dict, axis):
+    """log10 k_i + r/2 on the upper half along `axis`, - r/2 on the lower: a ratio 10^r between halves."""
+    field_ = np.asarray(ctx.values["log10_k"], float) + 0.5 * float(x["log10_ratio"]) * halves(ctx.anchors, axis)
+    return {}, {"log10_k": field_}
+
+
+def _plastic(ctx: Context, x: dict, _variant):
+    return {"plastic_yield_strain": float(10.0 ** float(x["log10_yield_strain"]))}, {}
 
 
 CANDIDATES = Registry("diagnosis candidate", "diagnose.candidates", ValueError)
-CANDIDATES["air_drag"] = Candidate("air_drag", "air_drag", 0.0, 8.0)  # 1/s
-CANDIDATES["gravity"] = Candidate("gravity", "gravity_scale", 0.6, 1.4)
-CANDIDATES["ground_plane"] = Candidate("ground_plane", "ground_offset", -0.15, 0.15, relative=True)
+CANDIDATES["air_drag"] = Candidate(
+    "air_drag", (Param("value", 0.0, 8.0),), _free_fall("air_drag"), "physics.air_drag (1/s), v0 refitted"
+)
+CANDIDATES["gravity"] = Candidate(
+    "gravity", (Param("value", 0.6, 1.4, null=1.0),), _free_fall("gravity_scale"), "physics.gravity_scale, v0 refitted"
+)
+CANDIDATES["ground_plane"] = Candidate(
+    "ground_plane",
+    (Param("offset", -0.15, 0.15, relative=True),),
+    _ground_offset,
+    "physics.ground_offset (scene units)",
+)
+CANDIDATES["ground_tilt"] = Candidate(
+    "ground_plane",
+    (Param("tilt_a_deg", -12.0, 12.0), Param("tilt_b_deg", -12.0, 12.0), Param("offset", -0.15, 0.15, relative=True)),
+    _ground_tilt,
+    "physics.ground_tilt_deg / ground_tilt_azimuth_deg from a tilt vector, and physics.ground_offset",
+)
+CANDIDATES["plasticity"] = Candidate(
+    "plasticity",
+    (Param("log10_yield_strain", -2.5, -0.1, null=-0.1),),
+    _plastic,
+    "physics.plastic_yield_strain = 10^value (rest lengths yield beyond that strain; 0.8 is all but elastic)",
+)
+CANDIDATES["heterogeneous_stiffness"] = Candidate(
+    "heterogeneous_stiffness",
+    (Param("log10_ratio", -1.5, 1.5),),
+    _two_stiffnesses,
+    "the identified log10 k field + r/2 above the median of a world axis and - r/2 below (ratio 10^r)",
+    variants=(0, 1, 2),
+)
 
 
 @dataclass
 class Fit:
-    value: float  # the fitted setting
-    interval: tuple  # (low, high) profile interval of the setting
-    d_fit: float  # fitting-views D at the fitted value
-    d_held_out: float  # held-out-views D at the fitted value
+    values: dict  # {param: fitted value}
+    variant: object  # the discrete choice kept (None when the candidate has none)
+    interval: dict  # {param: (low, high)} profile interval
+    settings: dict  # the physics settings at the fit
+    d_fit: float  # fitting-views D at the fit
+    d_held_out: float  # held-out-views D at the fit
     d_future: float | None  # D over the future frames (all views), when the sequence has them
-    evaluated: list  # [(value, fitting D)] in the order the search ran
+    evaluated: list = field(default_factory=list)  # [(variant, {param: value}, fitting D)] in search order
 
 
 class Evaluator:
-    """D of the asset's rollouts with given physics settings, on fitting / held-out views and
-    future frames; positions are cached per settings."""
+    """D of the asset's rollouts with given physics settings and value replacements, on fitting /
+    held-out views and future frames; positions are cached per (settings, replacements).
+    score: (observation, positions [T, N_A, 3]) -> D [V, F] (`sgdr.discrepancy.measures`)."""
 
-    def __init__(self, asset, rollout, obs_fit, obs_held, obs_future, centre_map):
+    def __init__(self, asset, rollout, obs_fit, obs_held, obs_future, score):
         from sgdr.physics import Ground
 
         self.asset, self.rollout = asset, rollout
         self.obs_fit, self.obs_held, self.obs_future = obs_fit, obs_held, obs_future
-        self.centre_map = centre_map
+        self.score = score
         self.model, _ = asset.build()
         self.ground = Ground(asset.ground_point, asset.ground_normal)
         frames = [obs_fit.frames, obs_held.frames] + ([obs_future.frames] if obs_future is not None else [])
         self.n_frames = int(max(int(np.max(f)) for f in frames)) + 1
         self.cache: dict = {}
 
-    def positions(self, settings: dict) -> np.ndarray | None:
-        key = tuple(sorted(settings.items()))
+    def positions(self, settings: dict, values: dict | None = None) -> np.ndarray | None:
+        values = values or {}
+        key = (
+            tuple(sorted(settings.items())),
+            tuple((k, np.asarray(v, float).round(12).tobytes()) for k, v in sorted(values.items())),
+        )
         if key not in self.cache:
             cfg = replace(self.asset.physics, **settings)
             pos, stable = self.rollout(
                 self.model,
-                self.asset.values,
+                {**self.asset.values, **values},
                 {"log10_k_shift": np.zeros(1)},
                 self.ground,
                 self.n_frames,
@@ -84,39 +215,70 @@ class Evaluator:
             self.cache[key] = pos[0] if stable[0] else None
         return self.cache[key]
 
-    def d(self, settings: dict, obs) -> float:
-        from sgdr.posterior.likelihood import discrepancy
+    def per_view_frame(self, settings: dict, obs, values: dict | None = None) -> np.ndarray | None:
+        """D [V, F] of one rollout, None when it is unstable."""
+        pos = self.positions(settings, values)
+        return None if pos is None else np.asarray(self.score(obs, pos), float)
 
-        pos = self.positions(settings)
-        if pos is None:
-            return float("inf")
-        return float(np.sum(discrepancy(obs, self.centre_map(pos[None, obs.frames]))))
+    def d(self, settings: dict, obs, values: dict | None = None) -> float:
+        d = self.per_view_frame(settings, obs, values)
+        return float("inf") if d is None else float(np.sum(d))
 
 
-def fit_candidate(ev: Evaluator, cand: Candidate, size: float, evaluations: int) -> Fit:
-    from scipy.optimize import minimize_scalar
+def _search(objective, bounds: list, x0: np.ndarray, evaluations: int) -> np.ndarray:
+    from scipy.optimize import minimize, minimize_scalar
 
-    scale = size if cand.relative else 1.0
-    lo, hi = cand.low * scale, cand.high * scale
-    evaluated = []
-
-    def objective(value):
-        d = ev.d({cand.setting: float(value)}, ev.obs_fit)
-        evaluated.append((float(value), d))
-        return d
-
-    res = minimize_scalar(
-        objective, bounds=(lo, hi), method="bounded", options={"maxiter": int(evaluations), "xatol": 1e-3 * (hi - lo)}
+    if len(bounds) == 1:
+        lo, hi = bounds[0]
+        res = minimize_scalar(
+            lambda v: objective(np.array([v])),
+            bounds=(lo, hi),
+            method="bounded",
+            options={"maxiter": int(evaluations), "xatol": 1e-3 * (hi - lo)},
+        )
+        return np.array([float(res.x)])
+    res = minimize(
+        objective,
+        x0,
+        method="Powell",
+        bounds=bounds,
+        options={"maxfev": int(evaluations) * len(bounds), "xtol": 1e-3, "ftol": 1e-4},
     )
-    best = float(res.x)
-    d_best = min(d for _, d in evaluated)
-    near = [v for v, d in evaluated if d <= 1.05 * d_best]
-    settings = {cand.setting: best}
+    return np.clip(np.asarray(res.x, float), [b[0] for b in bounds], [b[1] for b in bounds])
+
+
+def fit_candidate(ev: Evaluator, cand: Candidate, ctx: Context, evaluations: int) -> Fit:
+    names = [p.name for p in cand.params]
+    bounds = [
+        (p.low * (ctx.size if p.relative else 1.0), p.high * (ctx.size if p.relative else 1.0)) for p in cand.params
+    ]
+    x0 = np.array([p.null for p in cand.params], float)
+    evaluated: list = []
+    best = None
+    for variant in cand.variants:
+
+        def objective(x, variant=variant):
+            values = dict(zip(names, (float(v) for v in x)))
+            settings, repl = cand.apply(ctx, values, variant)
+            d = ev.d(settings, ev.obs_fit, repl)
+            evaluated.append((variant, values, d))
+            return d
+
+        x = _search(objective, bounds, x0, evaluations)
+        d = objective(x)
+        if best is None or d < best[2]:
+            best = (variant, dict(zip(names, (float(v) for v in x))), d)
+    variant, values, d_best = best
+    near = [vals for var, vals, d in evaluated if var == variant and d <= 1.05 * d_best]
+    interval = {n: (float(min(v[n] for v in near)), float(max(v[n] for v in near))) for n in names}
+    settings, repl = cand.apply(ctx, values, variant)
     return Fit(
-        value=best,
-        interval=(float(min(near)), float(max(near))),
-        d_fit=ev.d(settings, ev.obs_fit),
-        d_held_out=ev.d(settings, ev.obs_held),
-        d_future=ev.d(settings, ev.obs_future) if ev.obs_future is not None else None,
+        values=values,
+        variant=variant,
+        interval=interval,
+        settings=settings,
+        d_fit=ev.d(settings, ev.obs_fit, repl),
+        d_held_out=ev.d(settings, ev.obs_held, repl),
+        d_future=ev.d(settings, ev.obs_future, repl) if ev.obs_future is not None else None,
         evaluated=evaluated,
     )

@@ -12,9 +12,22 @@ class DiagnoseConfig:
     run: str = "outputs/torus_small_s0"  # the finished run folder (holds asset/)
     sequence: str = ""  # the observed sequence ("" = the run's own, from its RUN.json)
     out_dir: str = ""  # where diagnosis.json goes ("" = <run>/diagnose)
-    candidates: list = field(default_factory=lambda: ["air_drag", "gravity", "ground_plane"])  # CANDIDATES names
-    n_points: int = 200  # bound Gaussian centres projected per view-frame (a fixed seeded subset)
-    n_mask_points: int = 100  # silhouette pixels sampled per view-frame (the coverage term)
+    candidates: list = field(
+        default_factory=lambda: [
+            "air_drag",
+            "gravity",
+            "ground_plane",
+            "ground_tilt",
+            "plasticity",
+            "heterogeneous_stiffness",
+        ]
+    )  # CANDIDATES names
+    discrepancy: str = (
+        "render"  # how a rollout is measured against the images: render | points (sgdr.discrepancy.measures)
+    )
+    max_image_size: int = 64  # "render": larger images are compared at this size (block means), pixels
+    n_points: int = 200  # "points": bound Gaussian centres projected per view-frame (a fixed seeded subset)
+    n_mask_points: int = 100  # "points": silhouette pixels sampled per view-frame (the coverage term)
     frame_stride: int = 1  # every frame_stride-th fit frame after frame 0
     evaluations: int = 16  # rollouts of the bounded 1-D search per candidate
     min_gain: float = 0.1  # held-out gain 1 - D_candidate / D_base needed to name a cause (docs/discrepancy.md)
@@ -28,6 +41,8 @@ CHECKS = {
     "sequence": any_text("empty: the run's own sequence"),
     "out_dir": any_text("empty: <run>/diagnose"),
     "candidates": list_of(choice("sgdr.discrepancy.candidates:CANDIDATES"), min_len=1),
+    "discrepancy": choice("sgdr.discrepancy.measures:MEASURES"),
+    "max_image_size": at_least(8),
     "n_points": at_least(8),
     "n_mask_points": at_least(8),
     "frame_stride": at_least(1),

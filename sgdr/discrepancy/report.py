@@ -38,6 +38,7 @@ def _marks(ax, record: dict):
 def plot_d(record: dict, path) -> Path:
     plt = _pyplot()
     d = np.asarray(record["d"]["matrix"], float)  # [V, T]
+    unit = record["d"].get("unit") or "the diagnosis's measure"
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 2.2 + 0.25 * d.shape[0]), sharex=True,
                                       gridspec_kw={"height_ratios": [max(d.shape[0], 2), 3]})  # fmt: skip
     im = top.imshow(np.ma.masked_invalid(d), aspect="auto", cmap="magma", interpolation="nearest",
@@ -45,13 +46,13 @@ def plot_d(record: dict, path) -> Path:
     top.set_yticks(range(d.shape[0]))
     top.set_yticklabels(record["views"], fontsize=7)
     top.set_ylabel("view")
-    fig.colorbar(im, ax=top, location="top", label="D (px²)", aspect=40)  # on top: the frame axes stay aligned
+    fig.colorbar(im, ax=top, location="top", label=f"D ({unit})", aspect=40)  # on top: the frame axes stay aligned
     if record["n_fit"] < record["frames"]:
         top.axvline(record["n_fit"] - 0.5, color="w", ls="--", lw=1)
     bottom.plot(np.arange(d.shape[1]), np.asarray(record["d"]["per_frame"], float), "k.-")
     _marks(bottom, record)
     bottom.set_xlabel("frame")
-    bottom.set_ylabel("mean D (px²)")
+    bottom.set_ylabel("mean D")
     bottom.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=80)
@@ -134,20 +135,22 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
     body = [f'<p id="discrepancy-cause"><b>Cause named: {esc(diagnosis["cause"])}</b> '
             f"(a candidate is named when its held-out gain is at least {diagnosis['min_gain']:g}).</p>"]  # fmt: skip
     rows = [
-        [n, c["setting"], _g(c["value"]), _g(c["gain"]), _g(c["future_gain"]), c["decision"]]
+        [n, c["changes"], ", ".join(f"{k} = {_g(v)}" for k, v in (c["values"] or {}).items()),
+         _g(c["gain"]), _g(c["future_gain"]), c["decision"]]
         for n, c in diagnosis["candidates"].items()
-    ]
-    body.append(table(["candidate", "setting", "fitted value", "held-out gain", "future gain", "decision"], rows))
-    base = diagnosis["base"]
+    ]  # fmt: skip
+    body.append(table(["candidate", "changes", "fitted values", "held-out gain", "future gain", "decision"], rows))
+    base, unit = diagnosis["base"], diagnosis["discrepancy"]["unit"]
     body.append(paragraph(
-        f"Observed: {diagnosis['sequence']}. Base D (pixels², summed over the view-frames): fitting views "
-        f"{_g(base['d_fit'])}, held-out views {_g(base['d_held_out'])}, future frames {_g(base['d_future'])}."
+        f"Observed: {diagnosis['sequence']}. Measure: {diagnosis['discrepancy']['measure']} ({unit}). Base D, summed "
+        f"over the view-frames: fitting views {_g(base['d_fit'])}, held-out views {_g(base['d_held_out'])}, future "
+        f"frames {_g(base['d_future'])}."
     ))  # fmt: skip
     if record is None:
         return Section("Model discrepancy", "".join(body))
     ff, ct, rs, com = record["free_flight"], record["contact"], record["rest_shape"], record["com"]
     body.append(image(plots["d"], "residual D per view and frame",
-                      "The base fit's silhouette discrepancy D per view (rows) and frame (columns); frame 0 is the "
+                      f"The base fit's discrepancy D ({unit}) per view (rows) and frame (columns); frame 0 is the "
                       "rest state and not scored. Below: the mean over the views."))  # fmt: skip
     body.append(image(plots["com"], "centre of mass observed against simulated",
                       "Centre of mass from the silhouette centroids of all views, triangulated the same way for the "

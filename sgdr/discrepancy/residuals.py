@@ -14,7 +14,7 @@ each view is chosen so that the simulated area at frame 0 (the rest state, fitte
 stage) equals the observed one (`simulated_masks`). Outputs (`residual_diagnostics`, one dict per
 part, strict-JSON ready after `strict_values`):
 
-  d_matrix     D [V, T] of the base fit (pixels², the diagnosis's Chamfer D; frame 0 is None)
+  d_matrix     D [V, T] of the base fit (the diagnosis's measure; frame 0 is None)
   com          centre-of-mass trajectories [T, 3] (world, scene units): the observed and the
                simulated one triangulated the same way from silhouette centroids, and the
                simulated anchors' mean; their heights above the recorded ground and horizontal
@@ -362,16 +362,14 @@ def _block_mean(img: np.ndarray, k: int) -> np.ndarray:
 
 # ---------------------------------------------------------------------- the whole record
 def d_matrix(evaluator, parts, n_views: int, n_frames: int) -> np.ndarray:
-    """D [V, T] pixels² of the base rollout (NaN where no observation has the view-frame).
-    parts: [(view indices, Observation)], the diagnosis's fitting, held-out and future ones."""
-    from sgdr.posterior.likelihood import discrepancy
-
+    """D [V, T] of the base rollout in the diagnosis's measure (`evaluator.per_view_frame`; NaN
+    where no observation has the view-frame). parts: [(view indices, observation)], the
+    diagnosis's fitting, held-out and future ones."""
     out = np.full((n_views, n_frames), np.nan)
-    pos = evaluator.positions({})
     for views, obs in parts:
-        if obs is None or pos is None:
+        d = None if obs is None else evaluator.per_view_frame({}, obs)  # [V_obs, F_obs]
+        if d is None:
             continue
-        d = discrepancy(obs, evaluator.centre_map(pos[None, obs.frames]))[0]  # [V_obs, F_obs]
         keep = obs.frames < n_frames
         out[np.ix_(list(views), obs.frames[keep])] = d[:, keep]
     return out

@@ -2,13 +2,18 @@
 
 1. The run's asset (its identified physics) and the observed sequence (the run's own, or
    `diagnose.sequence`, e.g. a twin with an injected effect).
-2. Silhouette observations (`sgdr.posterior.likelihood.observation`): the fit frames after
+2. Observations of the measure (`diagnose.discrepancy`, `sgdr.discrepancy.measures`): the fit frames after
    frame 0 in the fitting views (even positions among the views) and in the held-out views (odd
    positions), and the future frames in all views when the sequence has future frames.
 3. The base model's D on each, then every candidate (`sgdr.discrepancy.candidates`) fitted on
    the fitting views and judged on the held-out ones.
 4. The decision: the candidate with the largest held-out gain is the cause if that gain is at
-   least `diagnose.min_gain`, else "none"; gain = 1 - D_held_out(candidate) / D_held_out(base).
+   least `diagnose.min_gain`, else "none"; gain = 1 - (D_held_out(candidate) - floor) /
+   (D_held_out(base) - floor), the share of the base's discrepancy above the floor it removes.
+   The floor is frame 0's D in the same views, once per frame: the rest state is the static
+   fit's and no extension changes it, so what it leaves (appearance, the measure's own
+   representation error) is not the dynamics' to explain. Without the floor a gain is diluted by
+   it, the more the better the dynamics already fit (`relative_gain` keeps 1 - D / D_base).
 5. The residual diagnostics of the base fit (`sgdr.discrepancy.residuals`, when
    `diagnose.residuals`): `residuals.json` and residual_*.png beside diagnosis.json, the headline
    numbers in diagnosis.json "residuals".
@@ -29,12 +34,29 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 
+def excess_gain(d: float, d_base: float, floor: float | None) -> float:
+    """1 - (d - floor) / (d_base - floor): the share of the base's discrepancy above the floor
+    that a candidate removes (0 when the base is at the floor: nothing left to explain)."""
+    floor = 0.0 if floor is None else float(floor)
+    room = float(d_base) - floor
+    if not np.isfinite(d):
+        return -float("inf")
+    return 1.0 - (float(d) - floor) / room if room > 1e-12 * max(abs(float(d_base)), 1e-300) else 0.0
+
+
+def _same_sequence(a, b) -> bool:
+    try:
+        return Path(a).resolve() == Path(b).resolve()
+    except OSError:
+        return False
+
+
 def run_diagnosis(cfg) -> dict:
-    from sgdr.discrepancy.candidates import CANDIDATES, Evaluator, fit_candidate
+    from sgdr.discrepancy.candidates import CANDIDATES, Context, Evaluator, fit_candidate
+    from sgdr.discrepancy.measures import MEASURES
     from sgdr.discrepancy.residuals import summary
-    from sgdr.posterior.likelihood import CentreMap, observation
     from sgdr.posterior.rollouts import ROLLOUTS
-    from sgdr.posterior.run import run_asset_and_sequence, strict_values
+    from sgdr.posterior.run import run_asset_and_sequence, run_sequence, strict_values
 
     dc = cfg.diagnose
     t0 = time.time()
@@ -47,37 +69,60 @@ def run_diagnosis(cfg) -> dict:
     fit_frames = np.arange(1, seq.n_fit, int(dc.frame_stride))
     if fit_frames.size == 0:
         raise ValueError(f"{seq_dir}: no fit frame after frame 0")
-    obs_fit = observation(seq, fit_views, fit_frames, dc.n_mask_points, seed=cfg.seed)
-    obs_held = observation(seq, held_views, fit_frames, dc.n_mask_points, seed=cfg.seed)
+    measure = MEASURES.get_named(dc.discrepancy, "diagnose.discrepancy")
+    obs_fit = measure.observe(seq, fit_views, fit_frames, dc, cfg.seed)
+    obs_held = measure.observe(seq, held_views, fit_frames, dc, cfg.seed)
     future = np.arange(seq.n_fit, seq.n_frames)
-    obs_future = observation(seq, views, future, dc.n_mask_points, seed=cfg.seed) if future.size else None
-    ev = Evaluator(
-        asset, ROLLOUTS.get_named("loop"), obs_fit, obs_held, obs_future, CentreMap(asset, dc.n_points, cfg.seed)
-    )
+    obs_future = measure.observe(seq, views, future, dc, cfg.seed) if future.size else None
+    score = measure.scorer(asset, dc, cfg.render, cfg.seed)
+    ev = Evaluator(asset, ROLLOUTS.get_named("loop"), obs_fit, obs_held, obs_future, score)
     size = float(np.linalg.norm(np.ptp(np.asarray(asset.anchors, float), axis=0)))
     base = {"d_fit": ev.d({}, obs_fit), "d_held_out": ev.d({}, obs_held)}
     base["d_future"] = ev.d({}, obs_future) if obs_future is not None else None
     if not np.isfinite(base["d_held_out"]):
         raise RuntimeError(f"{asset_dir}: the identified parameters' rollout is unstable")
+    # the floor: frame 0's D (the rest state, which no extension changes) in each view, once per
+    # frame of the observation: what the asset's appearance leaves that no dynamics can remove
+    floor = {}
+    for key, vs, n in (("held_out", held_views, fit_frames.size), ("future", views, future.size)):
+        zero = measure.observe(seq, vs, np.array([0]), dc, cfg.seed)
+        floor[key] = float(n * np.sum(score(zero, ev.positions({})))) if n else None
+    base["floor_held_out"], base["floor_future"] = floor["held_out"], floor["future"]
+    # v0 is refitted with gravity and drag only on the sequence the run fitted it to (its
+    # pre-hit frames under the base model); another sequence (a twin) keeps the asset's v0
+    own = _same_sequence(seq_dir, run_sequence(run_dir))
+    ctx = Context(
+        values=asset.values,
+        physics=asset.physics,
+        anchors=np.asarray(asset.anchors, float),
+        size=size,
+        free_fall_times=np.arange(1, max(int(seq.hit_frame), 1)) / float(asset.fps) if own else np.zeros(0),
+    )
     candidates = {}
     for name in dc.candidates:
         cand = CANDIDATES.get_named(name, "diagnose.candidates")
-        fit = fit_candidate(ev, cand, size, dc.evaluations)
-        gain = 1.0 - fit.d_held_out / base["d_held_out"]
-        future_gain = 1.0 - fit.d_future / base["d_future"] if fit.d_future is not None and base["d_future"] else None
+        fit = fit_candidate(ev, cand, ctx, dc.evaluations)
+        gain = excess_gain(fit.d_held_out, base["d_held_out"], floor["held_out"])
+        future_gain = excess_gain(fit.d_future, base["d_future"], floor["future"]) if fit.d_future is not None else None
+        first = cand.params[0].name
         candidates[name] = {
             "cause": cand.cause,
-            "setting": f"physics.{cand.setting}",
-            "value": fit.value,
-            "interval": list(fit.interval),
+            "changes": cand.describes,
+            "value": fit.values[first],
+            "interval": list(fit.interval[first]),
+            "values": fit.values,
+            "intervals": {k: list(v) for k, v in fit.interval.items()},
+            "variant": fit.variant,
+            "settings": {f"physics.{k}": v for k, v in fit.settings.items()},
             "fit_loss": fit.d_fit,
             "held_out_loss": fit.d_held_out,
             "gain": gain,
+            "relative_gain": 1.0 - fit.d_held_out / base["d_held_out"],
             "future_loss": fit.d_future,
             "future_gain": future_gain,
             "evaluations": len(fit.evaluated),
         }
-        log.info("diagnose: %s = %.4g, held-out gain %.3f", name, fit.value, gain)
+        log.info("diagnose: %s = %s, held-out gain %.3f", name, fit.values, gain)
     best = max(candidates, key=lambda n: candidates[n]["gain"]) if candidates else None
     named = best is not None and candidates[best]["gain"] >= float(dc.min_gain)
     for name, c in candidates.items():
@@ -87,6 +132,8 @@ def run_diagnosis(cfg) -> dict:
         "candidates": candidates,
         "base": base,
         "min_gain": float(dc.min_gain),
+        "discrepancy": {"measure": dc.discrepancy, "unit": measure.unit},
+        "v0_refit": bool(own),
         "fitting_views": [seq.cameras[v].name for v in fit_views],
         "held_out_views": [seq.cameras[v].name for v in held_views],
         "frames": fit_frames.tolist(),
@@ -101,7 +148,7 @@ def run_diagnosis(cfg) -> dict:
     residuals, plots = None, None
     if dc.residuals:
         parts = [(fit_views, obs_fit), (held_views, obs_held), (views, obs_future)]
-        residuals, plots = write_residuals(ev, parts, seq, asset, dc, out)
+        residuals, plots = write_residuals(ev, parts, seq, asset, dc, out, measure.unit)
         record["residuals"] = summary(residuals)
     record["seconds"] = time.time() - t0
     record = strict_values(record)
@@ -119,9 +166,9 @@ def run_diagnosis(cfg) -> dict:
     return record
 
 
-def write_residuals(ev, parts, seq, asset, dc, out: Path) -> tuple[dict, dict]:
+def write_residuals(ev, parts, seq, asset, dc, out: Path, unit: str) -> tuple[dict, dict]:
     """The residual diagnostics of the base rollout: residuals.json and the plots in `out`;
-    returns (the strict-JSON record, {name: plot path})."""
+    returns (the strict-JSON record, {name: plot path}). unit: the measure's D unit."""
     from sgdr.discrepancy.report import write_plots
     from sgdr.discrepancy.residuals import d_matrix, residual_diagnostics
     from sgdr.posterior.run import strict_values
@@ -130,6 +177,7 @@ def write_residuals(ev, parts, seq, asset, dc, out: Path) -> tuple[dict, dict]:
     pos = ev.positions({})
     d = d_matrix(ev, parts, len(seq.cameras), min(pos.shape[0], seq.n_frames))
     record, maps = residual_diagnostics(seq, asset, pos, d, int(dc.residual_grid))
+    record["d"]["unit"] = unit
     record = strict_values(record)
     plots = write_plots(record, maps, out, int(dc.residual_views))
     record["seconds"] = time.time() - t0

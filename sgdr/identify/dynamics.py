@@ -237,8 +237,7 @@ def pass_truncated(p: _Pass, opt, rng, n_t: int) -> tuple[list[float], int]:
             n_t = more
             log.warning("dynamics: non-finite frame %d, n_t raised to %d", f, n_t)
         dr.backward(loss)
-        opt.step()
-        clamp_to_ranges(opt, p.cfg)
+        finite_step(opt, p.cfg)
         frame_losses.append(value)
         state = new.detach()
         dr.eval(state.x, state.v)
@@ -274,9 +273,24 @@ def pass_full(p: _Pass, opt, rng, n_t: int) -> tuple[list[float], int]:
     if not math.isfinite(scalar(loss)):
         raise RuntimeError(f"dynamics (full): non-finite loss with n_t={states.n_substeps}; raise physics.n_substeps")
     dr.backward(loss)
-    opt.step()
-    clamp_to_ranges(opt, p.cfg)
+    finite_step(opt, p.cfg)
     return frame_losses, n_t
+
+
+def finite_step(opt, cfg) -> bool:
+    """One Adam step and the range clamp, unless a gradient is NaN/inf: then the step is skipped
+    and the gradients cleared (one such step would make every parameter NaN, and the next
+    rollout fail), with a warning; False when skipped. A finite loss can still have a
+    non-finite gradient (a near-coincident spring or contact in one substep)."""
+    bad = [name for name in opt.keys() if not np.all(np.isfinite(to_numpy(dr.grad(opt[name]))))]
+    if bad:
+        for name in opt.keys():
+            dr.clear_grad(opt[name])
+        log.warning("dynamics: non-finite gradient of %s; the Adam step is skipped", ", ".join(bad))
+        return False
+    opt.step()
+    clamp_to_ranges(opt, cfg)
+    return True
 
 
 def fit_dynamics(

@@ -46,6 +46,7 @@ class PhysicsConfig:
     ground_offset: float = 0.0  # the ground plane moved along its normal by this, scene units
     ground_tilt_deg: float = 0.0  # the ground's normal tilted by this angle, degrees
     ground_tilt_azimuth_deg: float = 0.0  # the in-plane direction it tilts towards, degrees (sgdr.physics.extensions)
+    plastic_yield_strain: float = 0.0  # spring plasticity: rest lengths yield to keep |strain| <= this; 0 = elastic
 
 
 # Allowed values, checked before any work (sgdr.checks; names against their registries).
@@ -70,6 +71,7 @@ CHECKS = {
     "ground_offset": finite(),
     "ground_tilt_deg": between(-45.0, 45.0),
     "ground_tilt_azimuth_deg": finite(),
+    "plastic_yield_strain": between(0.0, 0.95),
     "friction_init": non_negative(),
     "restitution_init": between(0.0, 1.0),
     "min_length": positive(),

@@ -13,6 +13,10 @@ the posterior's rollouts): they enter through `_frame_constants` and `euler_cont
   the ground plane the sequence records is moved along its normal n by d and its normal tilted,
   n' = cos θ n + sin θ (cos φ a + sin φ b), about the moved point, with (a, b) the plane's axes
   from `plane_axes` (a: the world axis least aligned with n, made orthogonal to it; b = n x a).
+- `plastic_yield_strain` ε: spring plasticity, the paper's future work. After every substep each
+  rest length yields just enough that its spring's strain stays within ±ε
+  (`sgdr.physics.simulate.plastic_rest_lengths`); the rest lengths become state (`SimState.rest`).
+  Forward and recorded AD; the gather adjoint refuses it when gradients are asked for.
 """
 
 from __future__ import annotations

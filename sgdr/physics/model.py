@@ -220,6 +220,7 @@ class SimState:
 
     x: object  # Array3f [N_A] world, scene units
     v: object  # Array3f [N_A] scene units / s
+    rest: object = None  # Float [N_A n_k] spring rest lengths once plasticity moves them; None: the model's
 
     @staticmethod
     def at_rest(model: SpringModel, v0) -> SimState:
@@ -240,7 +241,9 @@ class SimState:
         return SimState(x=t.Array3f(*x.T.astype(np.float32)), v=t.Array3f(*v.T.astype(np.float32)))
 
     def detach(self) -> SimState:
-        return SimState(x=dr.detach(self.x), v=dr.detach(self.v))
+        return SimState(
+            x=dr.detach(self.x), v=dr.detach(self.v), rest=None if self.rest is None else dr.detach(self.rest)
+        )
 
     def numpy(self) -> tuple[np.ndarray, np.ndarray]:
         """(x [N_A, 3], v [N_A, 3]) float64."""

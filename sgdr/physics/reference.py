@@ -108,7 +108,8 @@ def contact(x, v, point, normal, p: dict, dt: float, cfg: PhysicsConfig):
 
 def substep(m: dict, p: dict, x, v, ground, dt: float, cfg: PhysicsConfig):
     """Semi-implicit Euler (Eqs. 10-12) then contact (Eq. 13), with the model extensions
-    (`sgdr.physics.extensions`: gravity scale, implicit air drag, moved / tilted ground)."""
+    (`sgdr.physics.extensions`: gravity scale, implicit air drag, moved / tilted ground, spring
+    plasticity, which updates m["spring_rest_length"] in place)."""
     from sgdr.physics.extensions import ground_plane
 
     p = dict(p, gravity=float(cfg.gravity_scale) * np.asarray(p["gravity"], dtype=np.float64))
@@ -116,7 +117,12 @@ def substep(m: dict, p: dict, x, v, ground, dt: float, cfg: PhysicsConfig):
     v = (v + dt * (f / m["particle_mass"][:, None] + p["gravity"][None, :])) / (1.0 + float(cfg.air_drag) * dt)
     x = x + dt * v
     point, normal = ground_plane(ground.point, ground.normal, cfg)
-    return contact(x, v, point, normal, p, dt, cfg)
+    x, v = contact(x, v, point, normal, p, dt, cfg)
+    eps = float(cfg.plastic_yield_strain)
+    if eps != 0.0:  # plasticity: the rest lengths (m's, updated in place) yield to keep |strain| <= eps
+        length = np.sqrt(np.maximum(((x[:, None, :] - x[m["spring_j"]]) ** 2).sum(-1), cfg.min_length**2))
+        m["spring_rest_length"] = np.clip(m["spring_rest_length"], length / (1.0 + eps), length / (1.0 - eps))
+    return x, v
 
 
 def simulate_frame(m: dict, p: dict, x, v, ground, dt_frame: float, n_substeps: int, cfg: PhysicsConfig):
@@ -129,7 +135,9 @@ def simulate_frame(m: dict, p: dict, x, v, ground, dt_frame: float, n_substeps: 
 def rollout(
     m: dict, p: dict, ground, n_frames: int, dt_frame: float, n_substeps: int, cfg: PhysicsConfig, x0=None, v0=None
 ):
-    """[(x, v)] for frames 0..n_frames-1 from rest positions (or x0) moving with p["v0"] (or v0)."""
+    """[(x, v)] for frames 0..n_frames-1 from rest positions (or x0) moving with p["v0"] (or v0).
+    With plasticity m's rest lengths evolve: the rollout works on a copy of m."""
+    m = dict(m, spring_rest_length=np.array(m["spring_rest_length"], dtype=np.float64))
     x = m["x_rest"].copy() if x0 is None else np.array(x0, dtype=np.float64)
     v = np.broadcast_to(p["v0"], x.shape).copy() if v0 is None else np.array(v0, dtype=np.float64)
     out = [(x, v)]

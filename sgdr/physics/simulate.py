@@ -112,9 +112,11 @@ SPRINGS = Registry("springs variant", "physics.springs", PhysicsInputError)
 
 
 @SPRINGS.register("directed")
-def springs_directed(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig):
-    """Σ_r force of spring i -> j_r on anchor i, k_ij = k_i / l_ij (official). Array3f [N_A]."""
+def springs_directed(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig, rest=None):
+    """Σ_r force of spring i -> j_r on anchor i, k_ij = k_i / l_ij (official). Array3f [N_A].
+    rest: the springs' rest lengths when plasticity has moved them (`SimState.rest`), else the model's."""
     t = ad()
+    rest = model.spring_rest_length if rest is None else rest
     n, n_k = model.n_anchors, model.n_k
     law = SPRING_LAWS.get_named(cfg.spring_law, "physics.spring_law")
     base = dr.arange(t.UInt32, n) * n_k
@@ -122,7 +124,7 @@ def springs_directed(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig)
     def body(r, f):
         s = base + r
         j = dr.gather(t.UInt32, model.spring_j, s)
-        l = dr.gather(t.Float, model.spring_rest_length, s)
+        l = dr.gather(t.Float, rest, s)
         eta = soft_vector_eta(sp, soft_vector_exponent(t.Float(r), n_k, model.n_c, cfg.soft_vector_normalised))
         xj = dr.gather(t.Array3f, x, j)
         vj = dr.gather(t.Array3f, v, j)
@@ -140,9 +142,11 @@ def springs_directed(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig)
 
 
 @SPRINGS.register("symmetric")
-def springs_symmetric(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig):
-    """Outgoing springs i -> j plus the reaction of incoming springs a -> i. Array3f [N_A]."""
+def springs_symmetric(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig, rest=None):
+    """Outgoing springs i -> j plus the reaction of incoming springs a -> i. Array3f [N_A].
+    rest: as `springs_directed`."""
     t = ad()
+    rest = model.spring_rest_length if rest is None else rest
     n, n_k = model.n_anchors, model.n_k
     law = SPRING_LAWS.get_named(cfg.spring_law, "physics.spring_law")
     combine = SYMMETRIC_STIFFNESS.get_named(cfg.symmetric_stiffness, "physics.symmetric_stiffness")
@@ -155,7 +159,7 @@ def springs_symmetric(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig
     def body_out(r, f):
         s = base + r
         j = dr.gather(t.UInt32, model.spring_j, s)
-        l = dr.gather(t.Float, model.spring_rest_length, s)
+        l = dr.gather(t.Float, rest, s)
         k_s = combine(k, dr.gather(t.Float, k, j))
         xj = dr.gather(t.Array3f, x, j)
         vj = dr.gather(t.Array3f, v, j)
@@ -175,7 +179,7 @@ def springs_symmetric(model: SpringModel, x, v, k, sp, zeta0, cfg: PhysicsConfig
     def body_in(q, f):
         s = dr.gather(t.UInt32, model.in_spring, q)
         a = s // n_k  # source anchor of spring s
-        l = dr.gather(t.Float, model.spring_rest_length, s)
+        l = dr.gather(t.Float, rest, s)
         k_s = combine(dr.gather(t.Float, k, a), k)
         xa = dr.gather(t.Array3f, x, a)
         va = dr.gather(t.Array3f, v, a)
@@ -318,17 +322,38 @@ def substep(
     """One semi-implicit Euler substep (Eqs. 10-13), recorded AD; `ground_c` from `_frame_constants`."""
     springs = SPRINGS.get_named(cfg.springs, "physics.springs")
     c = ground_c
-    f = springs(model, state.x, state.v, c["k"], c["sp"], params.zeta0, cfg)
+    f = springs(model, state.x, state.v, c["k"], c["sp"], params.zeta0, cfg, rest=state.rest)
     x, v = euler_contact(
         state.x, state.v, f, params.gravity, params.friction, params.restitution, _contact_consts(c), dt, cfg
     )
+    rest = plastic_rest_lengths(model, x, state.rest, cfg)
+    extra = () if rest is None else (rest,)
     if dr.grad_enabled(f):
         # f too, in the same kernel: the contact's backward re-reads the pre-contact x, v, which
         # would otherwise re-run (and re-compile) the spring loop for every substep
-        dr.eval(x, v, f)
+        dr.eval(x, v, f, *extra)
     else:
-        dr.eval(x, v)  # no gradient: the whole substep is one kernel and f is never stored
-    return SimState(x=x, v=v)
+        dr.eval(x, v, *extra)  # no gradient: the whole substep is one kernel and f is never stored
+    return SimState(x=x, v=v, rest=rest)
+
+
+def plastic_rest_lengths(model: SpringModel, x, rest, cfg: PhysicsConfig):
+    """Spring plasticity (`physics.plastic_yield_strain` ε, sgdr.physics.extensions): every rest
+    length L moves just enough that the spring's strain |x_i - x_j| / L - 1 stays within ±ε, i.e.
+    L <- clamp(L, d / (1 + ε), d / (1 - ε)) with d the current length; the yield is permanent.
+    None when ε = 0 (elastic: the model's rest lengths, no state)."""
+    eps = float(cfg.plastic_yield_strain)
+    if eps == 0.0:
+        return None
+    t = ad()
+    rest = model.spring_rest_length if rest is None else rest
+    s = dr.arange(t.UInt32, model.n_anchors * model.n_k)
+    xi = dr.gather(t.Array3f, x, s // model.n_k)
+    xj = dr.gather(t.Array3f, x, dr.gather(t.UInt32, model.spring_j, s))
+    d = dr.sqrt(dr.maximum(dr.squared_norm(xi - xj), cfg.min_length * cfg.min_length))
+    lo = d * dr.opaque(t.Float, 1.0 / (1.0 + eps))
+    hi = d * dr.opaque(t.Float, 1.0 / (1.0 - eps))
+    return dr.minimum(dr.maximum(rest, lo), hi)
 
 
 # How a frame's substeps are differentiated (`physics.adjoint`, see the module docstring):
@@ -350,6 +375,11 @@ def substeps_gather(model, params, state, c, dt, n_substeps, cfg):
     diff = (state.x, state.v, c["k"], c["sp"], params.zeta0, params.gravity, params.friction, params.restitution)
     if not dr.grad_enabled(*diff):
         return substeps_recorded(model, params, state, c, dt, n_substeps, cfg)
+    if cfg.plastic_yield_strain != 0.0:
+        raise PhysicsInputError(
+            "physics.plastic_yield_strain: the gather adjoint has no backward through the yielding rest "
+            "lengths; differentiate with physics.adjoint=recorded (forward rollouts need nothing)"
+        )
     springs = SPRINGS.get_named(cfg.springs, "physics.springs")
     CONTACTS.get_named(cfg.contact, "physics.contact")  # fail here, naming the setting
     x, v = frame_gather(model, *diff, _contact_consts(c), dt, n_substeps, cfg, springs, euler_contact)

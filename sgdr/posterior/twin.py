@@ -53,14 +53,22 @@ def hit_frame(anchors: np.ndarray, ground_point, ground_normal, tol: float | Non
 
 
 def twin_sequence(
-    asset_dir, out, truth: dict, render_cfg=None, progress: bool = False, physics: dict | None = None
+    asset_dir,
+    out,
+    truth: dict,
+    render_cfg=None,
+    progress: bool = False,
+    physics: dict | None = None,
+    fields: dict | None = None,
 ) -> Path:
     """Simulate the asset in `asset_dir` with `truth`, render every camera and frame, write an
     sgdr-layout sequence to `out`; returns `out`. render_cfg: `RenderConfig` (default: its
     defaults). physics: `physics.*` settings that differ from the asset's, e.g. a model extension
     ({"gravity_scale": 0.8}, `sgdr.physics.extensions`): an effect injected into the twin, which
     changes the truth but not what the sequence records (its gravity and ground stay the
-    asset's; the effect is in gt/effects.json)."""
+    asset's; the effect is in gt/effects.json). fields: identified values replaced outright, e.g.
+    {"log10_k": [N_A]} for a stiffness field of another shape (a heterogeneity injected into
+    the twin; recorded in gt/effects.json)."""
     from dataclasses import replace
 
     from sgdr.data import write_sequence
@@ -72,6 +80,12 @@ def twin_sequence(
     asset = load_asset(asset_dir)
     true_physics = replace(asset.physics, **(physics or {}))
     values = twin_values(asset, truth)
+    for key, value in (fields or {}).items():
+        if key not in values or np.shape(value) != np.shape(values[key]):
+            raise ValueError(
+                f"twin fields: {key!r} must replace an identified value of shape {np.shape(values.get(key))}"
+            )
+        values[key] = np.asarray(value, float)
     model, binding = asset.build()
     params = physical_params(model, asset.physics, values)
     ground = Ground(asset.ground_point, asset.ground_normal)
@@ -111,5 +125,15 @@ def twin_sequence(
             "log10_k_mean": float(np.mean(values["log10_k"])),
             "n_substeps": int(pred.n_substeps),
         },
-        gt_effects={"physics": dict(physics), "active": sorted(physics)} if physics else {},
+        gt_effects=_effects(physics or {}, fields or {}),
     )
+
+
+def _effects(physics: dict, fields: dict) -> dict:
+    """gt/effects.json of a twin: the injected physics settings and replaced fields ({} without)."""
+    if not physics and not fields:
+        return {}
+    out = {"physics": dict(physics), "active": sorted(physics) + sorted(fields)}
+    if fields:
+        out["fields"] = {k: np.asarray(v, float).tolist() for k, v in fields.items()}
+    return out

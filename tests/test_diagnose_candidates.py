@@ -1,0 +1,143 @@
+"""The diagnosis candidates' own arithmetic (sgdr/discrepancy/candidates.py): the v0 refitted
+with a gravity or drag candidate keeps the base's free fall, the two-stiffness field splits the
+anchors at the median, every candidate's null is the base model, and the search finds a known
+minimum in one and several values."""
+
+import numpy as np
+import pytest
+
+from sgdr.discrepancy.candidates import CANDIDATES, Context, _fall_basis, _search, halves, refit_v0
+from sgdr.physics import PhysicsConfig
+
+
+def _ctx(**physics):
+    rng = np.random.default_rng(0)
+    anchors = rng.uniform(0.0, 1.0, (50, 3))
+    values = {
+        "log10_k": np.full(50, 3.0),
+        "kappa": 0.0,
+        "friction": 0.5,
+        "restitution": 0.0,
+        "v0": np.array([0.4, -0.2, -1.0]),
+        "gravity": np.array([0.0, 0.0, -9.8]),
+    }
+    return Context(values, PhysicsConfig(**physics), anchors, 1.7, np.arange(1, 6) / 24.0)
+
+
+def _fall(v0, g, scale, drag, t):
+    phi, psi = _fall_basis(drag, t)
+    return phi[:, None] * v0 + scale * psi[:, None] * g
+
+
+def test_the_refitted_v0_keeps_the_base_free_fall():
+    ctx = _ctx()
+    t = ctx.free_fall_times
+    base = _fall(ctx.values["v0"], ctx.values["gravity"], 1.0, 0.0, t)
+    np.testing.assert_allclose(refit_v0(ctx, 1.0, 0.0), ctx.values["v0"], atol=1e-12)  # the null changes nothing
+    for scale, drag in ((0.8, 0.0), (1.2, 0.0), (1.0, 3.0), (0.9, 1.5)):
+        v0 = refit_v0(ctx, scale, drag)
+        kept = np.abs(_fall(v0, ctx.values["gravity"], scale, drag, t) - base).max()
+        unchanged = np.abs(_fall(ctx.values["v0"], ctx.values["gravity"], scale, drag, t) - base).max()
+        assert kept < 0.5 * unchanged, (scale, drag)
+
+        def sse(v, scale=scale, drag=drag):
+            return float(((_fall(v, ctx.values["gravity"], scale, drag, t) - base) ** 2).sum())
+
+        for e in np.eye(3) * 1e-3:  # the least-squares optimum
+            assert sse(v0) <= min(sse(v0 + e), sse(v0 - e))
+        assert v0[2] != pytest.approx(ctx.values["v0"][2])
+    # a weaker gravity needs a faster downward start to pass through the same positions
+    assert refit_v0(ctx, 0.8, 0.0)[2] < ctx.values["v0"][2]
+    np.testing.assert_allclose(refit_v0(ctx, 0.8, 0.0)[:2], ctx.values["v0"][:2], atol=1e-12)  # g is along z only
+
+
+def test_without_free_fall_frames_v0_is_kept():
+    ctx = _ctx()
+    ctx.free_fall_times = np.zeros(0)
+    np.testing.assert_array_equal(refit_v0(ctx, 0.7, 2.0), ctx.values["v0"])
+
+
+def test_drag_basis_tends_to_the_drag_free_one():
+    t = np.linspace(0.0, 0.5, 11)
+    phi, psi = _fall_basis(1e-6, t)
+    np.testing.assert_allclose(phi, t, atol=1e-5)
+    np.testing.assert_allclose(psi, 0.5 * t * t, atol=1e-5)
+
+
+def test_halves_split_at_the_median():
+    anchors = np.random.default_rng(1).normal(size=(101, 3))
+    for axis in range(3):
+        h = halves(anchors, axis)
+        assert set(np.unique(h)) == {-1.0, 1.0}
+        assert abs(int(h.sum())) <= 1
+        assert anchors[h > 0, axis].min() > anchors[h < 0, axis].max()
+
+
+@pytest.mark.parametrize("name", sorted(CANDIDATES))
+def test_every_candidate_at_its_null_is_the_base_model(name):
+    cand = CANDIDATES.get_named(name)
+    ctx = _ctx()
+    x = {p.name: p.null for p in cand.params}
+    for variant in cand.variants:
+        settings, values = cand.apply(ctx, x, variant)
+        cfg = PhysicsConfig(**{k: v for k, v in settings.items() if k != "plastic_yield_strain"})
+        base = PhysicsConfig()
+        for k in ("air_drag", "gravity_scale", "ground_offset", "ground_tilt_deg"):
+            assert getattr(cfg, k) == pytest.approx(getattr(base, k)), (name, k)
+        if "plastic_yield_strain" in settings:  # 10^-0.1 = 0.79: no spring of a drop strains that far
+            assert settings["plastic_yield_strain"] > 0.75
+        for k, v in values.items():
+            np.testing.assert_allclose(v, ctx.values[k], atol=1e-12, err_msg=f"{name}: {k}")
+        assert all(p.low <= p.null <= p.high for p in cand.params), name
+
+
+def test_the_two_stiffness_field_has_the_ratio_between_halves():
+    cand = CANDIDATES.get_named("heterogeneous_stiffness")
+    ctx = _ctx()
+    _, values = cand.apply(ctx, {"log10_ratio": 0.6}, 2)
+    k = values["log10_k"]
+    up = halves(ctx.anchors, 2) > 0
+    assert k[up].mean() - k[~up].mean() == pytest.approx(0.6)
+    assert k.mean() == pytest.approx(3.0, abs=0.01)  # the mean stiffness is kept
+
+
+def test_the_search_finds_a_known_minimum_in_one_and_three_values():
+    calls = []
+
+    def f(x):
+        calls.append(x.copy())
+        return float(np.sum((x - np.array([0.3, -0.5, 0.1])[: x.size]) ** 2))
+
+    x1 = _search(f, [(-1.0, 1.0)], np.zeros(1), 16)
+    assert x1[0] == pytest.approx(0.3, abs=0.01)
+    x3 = _search(f, [(-1.0, 1.0)] * 3, np.zeros(3), 16)
+    np.testing.assert_allclose(x3, [0.3, -0.5, 0.1], atol=0.02)
+    assert len(calls) <= 16 + 3 * 16 + 10
+    tight = _search(f, [(0.5, 1.0)], np.zeros(1), 16)
+    assert tight[0] == pytest.approx(0.5, abs=0.01)  # within the bounds
+
+
+def test_the_ground_tilt_candidate_maps_its_tilt_vector():
+    cand = CANDIDATES.get_named("ground_tilt")
+    settings, _ = cand.apply(_ctx(), {"tilt_a_deg": 3.0, "tilt_b_deg": 4.0, "offset": 0.01}, None)
+    assert settings["ground_tilt_deg"] == pytest.approx(5.0)
+    assert settings["ground_tilt_azimuth_deg"] == pytest.approx(np.degrees(np.arctan2(4.0, 3.0)))
+    assert settings["ground_offset"] == pytest.approx(0.01)
+
+
+def test_downscaled_cameras_match_block_means():
+    from sgdr.cameras import Camera
+    from sgdr.discrepancy.measures import block_mean, downscale_factor, downscaled
+
+    cam = Camera.look_at([1.5, -1.0, 1.2], [0.0, 0.0, 0.2], [0, 0, 1], 40.0, 128, 96, "c")
+    k = downscale_factor(cam.width, cam.height, 64)
+    assert k == 2 and downscale_factor(32, 32, 64) == 1
+    small = downscaled(cam, k)
+    assert (small.width, small.height) == (64, 48)
+    pts = np.random.default_rng(0).normal(0.0, 0.2, (20, 3)) + [0.0, 0.0, 0.2]
+    uv, _ = cam.project(pts)
+    uv_small, _ = small.project(pts)
+    np.testing.assert_allclose(uv_small, uv / k, atol=1e-9)  # a point in block i of the large image is in pixel i
+    img = np.random.default_rng(1).uniform(size=(96, 128, 4))
+    b = block_mean(img, 2)
+    assert b.shape == (48, 64, 4) and b[3, 5, 1] == pytest.approx(img[6:8, 10:12, 1].mean())

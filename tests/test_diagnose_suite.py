@@ -1,0 +1,114 @@
+"""The diagnosis suite's bookkeeping (evaluation/diagnose_suite.py): the default cases meet the
+issue's counts and mix nulls and effects early, a rerun skips finished cases and retries failed
+ones, effect sizes are measured from a case's truth, and the bars are computed from the records."""
+
+import json
+
+import numpy as np
+import pytest
+
+from evaluation import diagnose_suite as S
+
+
+def test_default_suite_counts_and_order():
+    cases = S.default_cases()
+    ids = [c.id for c in cases]
+    assert len(ids) == len(set(ids))
+    null = [c for c in cases if c.expected == "none"]
+    injected = [c for c in cases if c.expected != "none"]
+    assert len(null) >= 20 and len(injected) >= 20
+    assert {c.expected for c in injected} == {
+        "gravity",
+        "air_drag",
+        "ground_plane",
+        "heterogeneous_stiffness",
+        "plasticity",
+    }
+    first = cases[:7]  # the first round: every object once, nulls and effects mixed
+    assert len({c.object for c in first}) == 7
+    assert 0 < sum(c.expected == "none" for c in first) < 7
+    assert all(c.method == "single_k" for c in cases if c.effect in ("stiff_ratio", "none_single_k"))
+
+
+def test_case_overrides_and_parsing():
+    assert S.Case("torus", "gravity", 0.85, 0).synth_overrides() == ["synth.effects.gravity=8.33"]
+    assert S.Case("torus", "none", 0.0, 1).synth_overrides() == []
+    yield_ = S.Case("apple", "plastic_yield", 0.1, 0).synth_overrides()[0]
+    assert yield_ == f"synth.effects.plastic_yield={0.1 * S._young('apple')!r}"
+    c = S.parse_case("cream:air_drag:2:1")
+    assert (c.object, c.effect, c.value, c.seed, c.id) == ("cream", "air_drag", 2.0, 1, "cream-air_drag-2-s1")
+    with pytest.raises(SystemExit, match="object:effect:value:seed"):
+        S.parse_case("cream:wind:2:1")
+
+
+def test_results_file_last_record_wins_and_names_a_bad_line(tmp_path):
+    f = tmp_path / "r.jsonl"
+    f.write_text(json.dumps({"id": "a", "status": "failed"}) + "\n" + json.dumps({"id": "a", "status": "ok"}) + "\n\n")
+    assert S.read_results(f)["a"]["status"] == "ok"
+    f.write_text("{not json\n")
+    with pytest.raises(SystemExit, match="r.jsonl:1"):
+        S.read_results(f)
+
+
+def _gt(tmp_path, last, effects):
+    seq = tmp_path / "seq"
+    (seq / "gt").mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    p0 = rng.uniform(0.0, 0.2, (300, 3))
+    np.save(seq / "gt" / "particles_000.npy", p0)
+    np.save(seq / "gt" / "particles_001.npy", last(p0))
+    base = {"air_drag": 0.0, "gravity": 9.8, "ground_offset": 0.0, "ground_tilt_deg": 0.0, "stiff_ratio": 1.0}
+    params = {
+        "v0": [0.0, 0.0, -0.5],
+        "effects": {**base, **effects},
+        "recorded": {"ground": {"point": [0, 0, 0], "normal": [0, 0, 1]}},
+    }
+    (seq / "gt" / "params.json").write_text(json.dumps(params))
+    (seq / "sequence.json").write_text(json.dumps({"hit_frame": 5, "fps": 24.0}))
+    return seq
+
+
+def test_effect_sizes_from_the_truth(tmp_path):
+    c, s = np.cos(0.7), np.sin(0.7)
+    rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    rigid = S.effect_sizes(_gt(tmp_path / "a", lambda p: p @ rot.T + 0.3, {}))
+    assert rigid["permanent_deformation"] == pytest.approx(0.0, abs=1e-9)  # a rigid motion deforms nothing
+    assert rigid["fall_slowed"] == pytest.approx(0.0)
+    squashed = S.effect_sizes(_gt(tmp_path / "b", lambda p: p * [1.0, 1.0, 0.8], {"air_drag": 2.0, "gravity": 8.33}))
+    assert 0.03 < squashed["permanent_deformation"] < 0.2
+    assert squashed["fall_slowed"] == pytest.approx(0.144, abs=0.01)  # drag 2 /s over 5 / 24 s
+    assert squashed["gravity_ratio"] == pytest.approx(0.85)
+
+
+def _rec(id_, expected, cause, gains):
+    cands = {
+        n: {"value": 1.0, "interval": [0, 1], "gain": g, "future_gain": None, "held_out_loss": 1.0}
+        for n, g in gains.items()
+    }
+    return {
+        "id": id_,
+        "status": "ok",
+        "expected": expected,
+        "cause": cause,
+        "correct": cause == expected,
+        "effect": id_.split("-")[1],
+        "candidates": cands,
+    }
+
+
+def test_summary_bars():
+    results = {
+        "a-none": _rec("a-none", "none", "none", {"gravity": 0.02, "air_drag": 0.05}),
+        "b-none": _rec("b-none", "none", "gravity", {"gravity": 0.2, "air_drag": 0.01}),
+        "c-gravity": _rec("c-gravity", "gravity", "gravity", {"gravity": 0.5, "air_drag": 0.1}),
+        "d-gravity": _rec("d-gravity", "gravity", "gravity", {"gravity": 0.2, "air_drag": 0.1}),
+        "e-air_drag": _rec("e-air_drag", "air_drag", "none", {"gravity": 0.0, "air_drag": 0.05}),
+        "f": {"id": "f", "status": "failed"},
+    }
+    s = S.summary(results)
+    assert s["null_cases"] == 2 and s["null_none_share"] == 0.5
+    assert s["injected_cases"] == 3 and s["injected_named_share"] == pytest.approx(2 / 3)
+    assert s["named_gain_share_ge_0.3"] == pytest.approx(1 / 3)
+    assert s["null_max_gain"] == {"gravity": 0.2, "air_drag": 0.05}
+    assert s["failed"] == ["f"]
+    assert "✗" in S.markdown(results)

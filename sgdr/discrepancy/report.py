@@ -44,7 +44,8 @@ def plot_d(record: dict, path) -> Path:
     im = top.imshow(np.ma.masked_invalid(d), aspect="auto", cmap="magma", interpolation="nearest",
                     extent=(-0.5, d.shape[1] - 0.5, d.shape[0] - 0.5, -0.5))  # fmt: skip
     top.set_yticks(range(d.shape[0]))
-    top.set_yticklabels(record["views"], fontsize=7)
+    per_view = np.asarray(record["d"]["per_view_fit"], float)  # the fit frames' mean per view, in the label
+    top.set_yticklabels([f"{n} ({m:.3g})" for n, m in zip(record["views"], per_view)], fontsize=7)
     top.set_ylabel("view")
     fig.colorbar(im, ax=top, location="top", label=f"D ({unit})", aspect=40)  # on top: the frame axes stay aligned
     if record["n_fit"] < record["frames"]:
@@ -150,8 +151,9 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
         return Section("Model discrepancy", "".join(body))
     ff, ct, rs, com = record["free_flight"], record["contact"], record["rest_shape"], record["com"]
     body.append(image(plots["d"], "residual D per view and frame",
-                      f"The base fit's discrepancy D ({unit}) per view (rows) and frame (columns); frame 0 is the "
-                      "rest state and not scored. Below: the mean over the views."))  # fmt: skip
+                      f"The base fit's discrepancy D ({unit}) per view (rows; in brackets its mean over the fit "
+                      "frames) and frame (columns); frame 0 is the rest state and not scored. Below: the mean over "
+                      "the views."))  # fmt: skip
     body.append(image(plots["com"], "centre of mass observed against simulated",
                       "Centre of mass from the silhouette centroids of all views, triangulated the same way for the "
                       "images and for the base rollout's projected Gaussians; green: the simulated anchors' mean."))  # fmt: skip

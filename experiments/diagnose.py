@@ -5,8 +5,10 @@
 
 Fits every candidate of diagnose.candidates (air drag, gravity's magnitude, the ground plane's
 height) from the run's identified physics on half the views and judges it on the other half
-(sgdr/discrepancy/, docs/discrepancy.md). Writes <run>/diagnose/diagnosis.json; the last line
-printed is one JSON object with "cause" and "candidates".
+(sgdr/discrepancy/, docs/discrepancy.md), then the residual diagnostics of the base fit. Writes
+<run>/diagnose/diagnosis.json, residuals.json and residual_*.png, and adds the 'Model discrepancy'
+section to <run>/report/report.html; the last line printed is one JSON object with "cause",
+"candidates" and the residuals' headline numbers.
 """
 
 from __future__ import annotations
@@ -54,6 +56,7 @@ def diagnose(cfg: DictConfig) -> None:
         },
         "base_held_out_loss": record["base"]["d_held_out"],
         "v0_refit": record["v0_refit"],
+        "residuals": record.get("residuals"),
         "seconds": round(record["seconds"], 1),
     }
     print(json.dumps(summary))

@@ -2,7 +2,10 @@
 injected into the asset's own model (so only the injected effect separates the twin from the
 asset) are named with their values, the null twin is "none", and the driver prints its JSON
 line. Each injected twin is judged against its own candidate and two that could mimic it (the
-full list runs on the null twin), to keep CI short."""
+full list runs on the null twin), to keep CI short. The residual diagnostics of the same
+diagnoses: on the null twin the observed and simulated free fall agree, under drag the observed
+fall is slower and the drag fit finds it; the run's report gains the 'Model discrepancy' section
+and still opens cleanly."""
 
 import json
 import subprocess
@@ -14,6 +17,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from sgdr.config import compose
+from tests.browser import assert_report_reads_well
 
 ROOT = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.slow  # a tiny reconstruction, twins and their diagnoses
@@ -80,6 +84,17 @@ def test_null_twin_names_no_cause(tiny):
     assert r["cause"] == "none", r["candidates"]
     assert max(c["gain"] for c in r["candidates"].values()) < 0.5 * r["min_gain"]  # flexibility alone buys little
     assert json.loads(Path(r["file"]).read_text())["cause"] == "none"
+    res = r["residuals"]  # the twin is the asset's own model: the same estimator, the same numbers
+    assert abs(res["gravity_ratio_observed"] - 1.0) < 0.1 and abs(res["gravity_ratio_simulated"] - 1.0) < 0.1, res
+    assert res["com_rms_error_fit"] < 0.1 * res["object_size"], res
+    full = json.loads((Path(r["file"]).parent / "residuals.json").read_text())
+    assert np.asarray(full["d"]["matrix"], float).shape == (4, 12)
+    for name in ("residual_d.png", "residual_com.png", "residual_spatial.png"):
+        assert (Path(r["file"]).parent / name).stat().st_size > 1000
+    page = Path(r["report"]).read_text()
+    assert 'id="model-discrepancy"' in page and "Cause named: none" in page
+    state = assert_report_reads_well(Path(r["report"]))
+    assert "where the silhouettes disagree" in [i["alt"] for i in state["images"]]
 
 
 def test_a_moved_ground_is_named_with_its_offset(tiny):
@@ -137,3 +152,6 @@ def test_drag_is_named_and_the_driver_prints_json(tiny):
     assert last["v0_refit"] is False  # a twin shares the asset's v0: nothing to refit
     assert last["candidates"]["air_drag"]["value"] == pytest.approx(4.0, rel=0.25)
     assert last["candidates"]["air_drag"]["gain"] >= 0.3
+    res = last["residuals"]  # drag 4/s: the images fall slower than the base model, and drag fits that
+    assert res["gravity_ratio_observed"] < res["gravity_ratio_simulated"] - 0.2, res
+    assert 2.0 < res["drag_per_s_observed"] < 6.0 and res["drag_per_s_simulated"] < 1.0, res

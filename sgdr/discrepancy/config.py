@@ -34,6 +34,9 @@ class DiagnoseConfig:
         0.05  # the room above the floor a gain is a share of is at least this x the floor (run.excess_gain)
     )
     min_gain: float = 0.1  # held-out gain 1 - D_candidate / D_base needed to name a cause (docs/discrepancy.md)
+    residuals: bool = True  # also the residual diagnostics of the base fit (residuals.json, residual_*.png)
+    residual_grid: int = 48  # blocks on the long side of the spatial residual maps (full resolution when larger)
+    residual_views: int = 4  # views shown in residual_spatial.png (those that disagree most)
 
 
 CHECKS = {
@@ -49,4 +52,6 @@ CHECKS = {
     "evaluations": at_least(4),
     "floor_margin": between(0.0, 1.0),
     "min_gain": between(0.0, 1.0),
+    "residual_grid": at_least(4),
+    "residual_views": at_least(1),
 }

@@ -14,8 +14,12 @@
    fit's and no extension changes it, so what it leaves (appearance, the measure's own
    representation error) is not the dynamics' to explain. Without the floor a gain is diluted by
    it, the more the better the dynamics already fit (`relative_gain` keeps 1 - D / D_base).
+5. The residual diagnostics of the base fit (`sgdr.discrepancy.residuals`, when
+   `diagnose.residuals`): `residuals.json` and residual_*.png beside diagnosis.json, the headline
+   numbers in diagnosis.json "residuals".
 
-Writes `diagnosis.json` (strict JSON) and returns it.
+Writes `diagnosis.json` (strict JSON) and returns it, and adds the 'Model discrepancy' section
+to `<run>/report/report.html` when that page exists.
 """
 
 from __future__ import annotations
@@ -53,6 +57,7 @@ def _same_sequence(a, b) -> bool:
 def run_diagnosis(cfg) -> dict:
     from sgdr.discrepancy.candidates import CANDIDATES, Context, Evaluator, fit_candidate
     from sgdr.discrepancy.measures import MEASURES
+    from sgdr.discrepancy.residuals import summary
     from sgdr.posterior.rollouts import ROLLOUTS
     from sgdr.posterior.run import run_asset_and_sequence, run_sequence, strict_values
 
@@ -146,6 +151,42 @@ def run_diagnosis(cfg) -> dict:
     }
     out = Path(dc.out_dir) if dc.out_dir else run_dir / "diagnose"
     out.mkdir(parents=True, exist_ok=True)
-    (out / "diagnosis.json").write_text(json.dumps(strict_values(record), indent=1, allow_nan=False))
+    residuals, plots = None, None
+    if dc.residuals:
+        parts = [(fit_views, obs_fit), (held_views, obs_held), (views, obs_future)]
+        residuals, plots = write_residuals(ev, parts, seq, asset, dc, out, measure.unit)
+        record["residuals"] = summary(residuals)
+    record["seconds"] = time.time() - t0
+    record = strict_values(record)
+    (out / "diagnosis.json").write_text(json.dumps(record, indent=1, allow_nan=False))
     record["file"] = str(out / "diagnosis.json")
+    report = run_dir / "report" / "report.html"
+    if report.exists():
+        from sgdr.discrepancy.report import section
+        from sgdr.pipeline.report_html import add_section
+
+        add_section(report, section(record, residuals, plots))
+        record["report"] = str(report)
+    else:
+        log.info("diagnose: %s missing, no report section added", report)
     return record
+
+
+def write_residuals(ev, parts, seq, asset, dc, out: Path, unit: str) -> tuple[dict, dict]:
+    """The residual diagnostics of the base rollout: residuals.json and the plots in `out`;
+    returns (the strict-JSON record, {name: plot path}). unit: the measure's D unit."""
+    from sgdr.discrepancy.report import write_plots
+    from sgdr.discrepancy.residuals import d_matrix, residual_diagnostics
+    from sgdr.posterior.run import strict_values
+
+    t0 = time.time()
+    pos = ev.positions({})
+    d = d_matrix(ev, parts, len(seq.cameras), min(pos.shape[0], seq.n_frames))
+    record, maps = residual_diagnostics(seq, asset, pos, d, int(dc.residual_grid))
+    record["d"]["unit"] = unit
+    record = strict_values(record)
+    plots = write_plots(record, maps, out, int(dc.residual_views))
+    record["seconds"] = time.time() - t0
+    (out / "residuals.json").write_text(json.dumps(record, indent=1, allow_nan=False))
+    log.info("diagnose: residuals in %.1f s -> %s", record["seconds"], out / "residuals.json")
+    return record, {k: str(v) for k, v in plots.items()}

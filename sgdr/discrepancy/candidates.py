@@ -193,13 +193,18 @@ class Evaluator:
         frames = [obs_fit.frames, obs_held.frames] + ([obs_future.frames] if obs_future is not None else [])
         self.n_frames = int(max(int(np.max(f)) for f in frames)) + 1
         self.cache: dict = {}
+        self.scores: dict = {}
+
+    @staticmethod
+    def _key(settings: dict, values: dict | None) -> tuple:
+        return (
+            tuple(sorted(settings.items())),
+            tuple((k, np.asarray(v, float).round(12).tobytes()) for k, v in sorted((values or {}).items())),
+        )
 
     def positions(self, settings: dict, values: dict | None = None) -> np.ndarray | None:
         values = values or {}
-        key = (
-            tuple(sorted(settings.items())),
-            tuple((k, np.asarray(v, float).round(12).tobytes()) for k, v in sorted(values.items())),
-        )
+        key = self._key(settings, values)
         if key not in self.cache:
             cfg = replace(self.asset.physics, **settings)
             pos, stable = self.rollout(
@@ -216,9 +221,15 @@ class Evaluator:
         return self.cache[key]
 
     def per_view_frame(self, settings: dict, obs, values: dict | None = None) -> np.ndarray | None:
-        """D [V, F] of one rollout, None when it is unstable."""
+        """D [V, F] of one rollout, None when it is unstable (cached per rollout and observation:
+        a rendered measure costs as much as the rollout)."""
         pos = self.positions(settings, values)
-        return None if pos is None else np.asarray(self.score(obs, pos), float)
+        if pos is None:
+            return None
+        key = (self._key(settings, values), id(obs))
+        if key not in self.scores:
+            self.scores[key] = np.asarray(self.score(obs, pos), float)
+        return self.scores[key]
 
     def d(self, settings: dict, obs, values: dict | None = None) -> float:
         d = self.per_view_frame(settings, obs, values)

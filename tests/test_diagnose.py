@@ -78,6 +78,7 @@ def test_null_twin_names_no_cause(tiny):
         "gravity",
         "ground_plane",
         "ground_tilt",
+        "contact",
         "plasticity",
         "heterogeneous_stiffness",
     }

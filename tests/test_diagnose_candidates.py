@@ -82,7 +82,7 @@ def test_every_candidate_at_its_null_is_the_base_model(name):
         settings, values = cand.apply(ctx, x, variant)
         cfg = PhysicsConfig(**{k: v for k, v in settings.items() if k != "plastic_yield_strain"})
         base = PhysicsConfig()
-        for k in ("air_drag", "gravity_scale", "ground_offset", "ground_tilt_deg"):
+        for k in ("air_drag", "gravity_scale", "ground_offset", "ground_tilt_deg", "contact_restitution"):
             assert getattr(cfg, k) == pytest.approx(getattr(base, k)), (name, k)
         if "plastic_yield_strain" in settings:  # 10^-0.1 = 0.79: no spring of a drop strains that far
             assert settings["plastic_yield_strain"] > 0.75

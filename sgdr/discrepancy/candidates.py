@@ -64,7 +64,7 @@ class Candidate:
     params: tuple  # Param, ...
     apply: Callable  # (Context, {name: value}, variant) -> (physics settings, value replacements)
     describes: str  # what it changes, for diagnosis.json and the docs
-    variants: tuple = (None,)  # discrete choices fitted one by one, the best fitting kept (e.g. an axis)
+    variants: tuple = (None,)  # discrete choices (e.g. an axis): each screened, the best fitting searched in full
 
 
 def _fall_basis(c: float, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -131,6 +131,12 @@ def _plastic(ctx: Context, x: dict, _variant):
     return {"plastic_yield_strain": float(10.0 ** float(x["log10_yield_strain"]))}, {}
 
 
+def _rebound(ctx: Context, x: dict, _variant):
+    if ctx.physics.contact != "project":  # the coulomb law learns its own restitution: nothing to add
+        return {}, {}
+    return {"contact_restitution": float(x["value"])}, {}
+
+
 CANDIDATES = Registry("diagnosis candidate", "diagnose.candidates", ValueError)
 CANDIDATES["air_drag"] = Candidate(
     "air_drag", (Param("value", 0.0, 8.0),), _free_fall("air_drag"), "physics.air_drag (1/s), v0 refitted"
@@ -149,6 +155,12 @@ CANDIDATES["ground_tilt"] = Candidate(
     (Param("tilt_a_deg", -12.0, 12.0), Param("tilt_b_deg", -12.0, 12.0), Param("offset", -0.15, 0.15, relative=True)),
     _ground_tilt,
     "physics.ground_tilt_deg / ground_tilt_azimuth_deg from a tilt vector, and physics.ground_offset",
+)
+CANDIDATES["contact"] = Candidate(
+    "contact",
+    (Param("value", 0.0, 0.9),),
+    _rebound,
+    "physics.contact_restitution (the project contact's lost rebound; nothing under coulomb contact)",
 )
 CANDIDATES["plasticity"] = Candidate(
     "plasticity",
@@ -265,21 +277,24 @@ def fit_candidate(ev: Evaluator, cand: Candidate, ctx: Context, evaluations: int
     ]
     x0 = np.array([p.null for p in cand.params], float)
     evaluated: list = []
-    best = None
-    for variant in cand.variants:
 
-        def objective(x, variant=variant):
-            values = dict(zip(names, (float(v) for v in x)))
-            settings, repl = cand.apply(ctx, values, variant)
-            d = ev.d(settings, ev.obs_fit, repl)
-            evaluated.append((variant, values, d))
-            return d
+    def objective(x, variant):
+        values = dict(zip(names, (float(v) for v in x)))
+        settings, repl = cand.apply(ctx, values, variant)
+        d = ev.d(settings, ev.obs_fit, repl)
+        evaluated.append((variant, values, d))
+        return d
 
-        x = _search(objective, bounds, x0, evaluations)
-        d = objective(x)
-        if best is None or d < best[2]:
-            best = (variant, dict(zip(names, (float(v) for v in x))), d)
-    variant, values, d_best = best
+    # several variants: each screened with half the budget, the best one searched in full
+    variants = list(cand.variants)
+    if len(variants) > 1:
+        screen = max(4, int(evaluations) // 2)
+        scores = [objective(_search(lambda x, v=v: objective(x, v), bounds, x0, screen), v) for v in variants]
+        variants = [variants[int(np.argmin(scores))]]
+    variant = variants[0]
+    x = _search(lambda x: objective(x, variant), bounds, x0, evaluations)
+    objective(x, variant)
+    variant, values, d_best = min((e for e in evaluated if e[0] == variant), key=lambda e: e[2])
     near = [vals for var, vals, d in evaluated if var == variant and d <= 1.05 * d_best]
     interval = {n: (float(min(v[n] for v in near)), float(max(v[n] for v in near))) for n in names}
     settings, repl = cand.apply(ctx, values, variant)

@@ -18,6 +18,7 @@ class DiagnoseConfig:
             "gravity",
             "ground_plane",
             "ground_tilt",
+            "contact",
             "plasticity",
             "heterogeneous_stiffness",
         ]

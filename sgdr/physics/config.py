@@ -46,6 +46,7 @@ class PhysicsConfig:
     ground_offset: float = 0.0  # the ground plane moved along its normal by this, scene units
     ground_tilt_deg: float = 0.0  # the ground's normal tilted by this angle, degrees
     ground_tilt_azimuth_deg: float = 0.0  # the in-plane direction it tilts towards, degrees (sgdr.physics.extensions)
+    contact_restitution: float = 0.0  # "project" contact: impacts faster than resting rebound with this e; 0 = official
     plastic_yield_strain: float = 0.0  # spring plasticity: rest lengths yield to keep |strain| <= this; 0 = elastic
 
 
@@ -72,6 +73,7 @@ CHECKS = {
     "ground_tilt_deg": between(-45.0, 45.0),
     "ground_tilt_azimuth_deg": finite(),
     "plastic_yield_strain": between(0.0, 0.95),
+    "contact_restitution": between(0.0, 1.0),
     "friction_init": non_negative(),
     "restitution_init": between(0.0, 1.0),
     "min_length": positive(),

@@ -13,6 +13,11 @@ the posterior's rollouts): they enter through `_frame_constants` and `euler_cont
   the ground plane the sequence records is moved along its normal n by d and its normal tilted,
   n' = cos θ n + sin θ (cos φ a + sin φ b), about the moved point, with (a, b) the plane's axes
   from `plane_axes` (a: the world axis least aligned with n, made orthogonal to it; b = n x a).
+- `contact_restitution` e: the official "project" contact zeroes the normal velocity of every
+  anchor on the ground, so nothing rebounds (README finding 6: the model loses the MPM's
+  rebound); with e an anchor that hits faster than the resting speed leaves with e times its
+  approach speed (`sgdr.physics.laws.contact_project`). The "coulomb" contact has its own,
+  learned restitution.
 - `plastic_yield_strain` ε: spring plasticity, the paper's future work. After every substep each
   rest length yields just enough that its spring's strain stays within ±ε
   (`sgdr.physics.simulate.plastic_rest_lengths`); the rest lengths become state (`SimState.rest`).

@@ -180,14 +180,22 @@ CONTACTS = Registry("contact model", "physics.contact", PhysicsInputError)
 def contact_project(x, v, point, normal, params, dt: float, g_norm, cfg):
     """Official: an anchor on or below the plane (height <= 0, inclusive as the official
     `apply_bc`) is projected onto it, its normal velocity zeroed and its tangential velocity
-    multiplied by μ (every substep, so the effective friction depends on n_t; restitution is
-    unused). An anchor lying exactly on the plane is touching: float32 rounding puts anchors
+    multiplied by μ (every substep, so the effective friction depends on n_t; the learned
+    restitution is unused). The extension `physics.contact_restitution` e (0: the official law)
+    gives an anchor that hits faster than the resting speed (rest_speed_factor |g| dt) the
+    normal velocity e times its approach speed. An anchor lying exactly on the plane is touching: float32 rounding puts anchors
     there often (a projected anchor whose tiny normal step x + dt v rounds back to x)."""
     phi = dr.dot(x - point, normal)  # signed height above the plane
     below = phi <= 0
     v_n = dr.dot(v, normal)
     x = dr.select(below, x - phi * normal, x)
-    v = dr.select(below, params.friction * (v - v_n * normal), v)
+    v_new = params.friction * (v - v_n * normal)
+    e = float(cfg.contact_restitution)
+    if e != 0.0:  # extension (sgdr.physics.extensions): an impact faster than resting rebounds with e
+        u = -v_n
+        rebound = dr.select(u > cfg.rest_speed_factor * g_norm * dt, dr.opaque(type(u), e) * u, 0.0)
+        v_new = v_new + rebound * normal
+    v = dr.select(below, v_new, v)
     return x, v
 
 

@@ -92,7 +92,9 @@ def contact(x, v, point, normal, p: dict, dt: float, cfg: PhysicsConfig):
         v_n = float(np.dot(v[a], normal))
         v_t = v[a] - v_n * normal
         if cfg.contact == "project":
-            v[a] = p["friction"] * v_t
+            u = -v_n
+            rebound = cfg.contact_restitution * u if u > cfg.rest_speed_factor * g_norm * dt else 0.0
+            v[a] = p["friction"] * v_t + rebound * normal
         elif cfg.contact == "coulomb":
             if v_n >= 0:
                 continue

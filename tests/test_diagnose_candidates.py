@@ -111,8 +111,8 @@ def test_the_search_finds_a_known_minimum_in_one_and_three_values():
     x1 = _search(f, [(-1.0, 1.0)], np.zeros(1), 16)
     assert x1[0] == pytest.approx(0.3, abs=0.01)
     x3 = _search(f, [(-1.0, 1.0)] * 3, np.zeros(3), 16)
-    np.testing.assert_allclose(x3, [0.3, -0.5, 0.1], atol=0.02)
-    assert len(calls) <= 16 + 3 * 16 + 10
+    np.testing.assert_allclose(x3, [0.3, -0.5, 0.1], atol=0.02)  # separable: one sweep finds it
+    assert len(calls) <= 4 * 16
     tight = _search(f, [(0.5, 1.0)], np.zeros(1), 16)
     assert tight[0] == pytest.approx(0.5, abs=0.01)  # within the bounds
 

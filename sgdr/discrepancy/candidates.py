@@ -4,8 +4,8 @@ Each candidate (`CANDIDATES`, a registry) names the cause it stands for and the 
 frees (`Param`s, searched within bounds; every one's 0 or 1 null is the base model). Its `apply`
 turns those values into `physics.*` settings (`sgdr.physics.extensions`) and replacements of the
 asset's identified values (e.g. a stiffness field). A candidate is fitted from the base fit: the
-identified parameters are kept, only its own values are searched (scipy's bounded Brent search
-for one value, bounded Powell for several; `diagnose.evaluations` rollouts per value) to
+identified parameters are kept, only its own values are searched (scipy's bounded Brent search,
+one value after another; `diagnose.evaluations` rollouts per value) to
 minimise the discrepancy D (`diagnose.discrepancy`, `sgdr.discrepancy.measures`: by default the
 mean absolute difference between the sequence's images and the asset rendered from the rollout)
 summed over the *fitting* views. It is judged on the *held-out* views (every other view; never used for the
@@ -249,25 +249,25 @@ class Evaluator:
 
 
 def _search(objective, bounds: list, x0: np.ndarray, evaluations: int) -> np.ndarray:
-    from scipy.optimize import minimize, minimize_scalar
+    """The minimiser of `objective` within `bounds`: a bounded Brent search of at most
+    `evaluations` rollouts per value, one value after another from x0 (one coordinate sweep:
+    each value of a multi-value candidate gets its own budget, which Powell's line searches
+    spent on the first direction)."""
+    from scipy.optimize import minimize_scalar
 
-    if len(bounds) == 1:
-        lo, hi = bounds[0]
+    x = np.asarray(x0, float).copy()
+    for i, (lo, hi) in enumerate(bounds):
+
+        def along(v, i=i):
+            y = x.copy()
+            y[i] = v
+            return objective(y)
+
         res = minimize_scalar(
-            lambda v: objective(np.array([v])),
-            bounds=(lo, hi),
-            method="bounded",
-            options={"maxiter": int(evaluations), "xatol": 1e-3 * (hi - lo)},
+            along, bounds=(lo, hi), method="bounded", options={"maxiter": int(evaluations), "xatol": 1e-3 * (hi - lo)}
         )
-        return np.array([float(res.x)])
-    res = minimize(
-        objective,
-        x0,
-        method="Powell",
-        bounds=bounds,
-        options={"maxfev": int(evaluations) * len(bounds), "xtol": 1e-3, "ftol": 1e-4},
-    )
-    return np.clip(np.asarray(res.x, float), [b[0] for b in bounds], [b[1] for b in bounds])
+        x[i] = float(res.x)
+    return np.clip(x, [b[0] for b in bounds], [b[1] for b in bounds])
 
 
 def fit_candidate(ev: Evaluator, cand: Candidate, ctx: Context, evaluations: int) -> Fit:

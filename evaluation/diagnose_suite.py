@@ -144,6 +144,11 @@ def _run(cmd: list[str], log_file: Path) -> tuple[int, str]:
     return proc.returncode, proc.stdout
 
 
+def _failed(rec: dict, stage: str, out: str, log_file: Path) -> dict:
+    """The record of a case whose `stage` command failed (retried by the next run)."""
+    return {**rec, "status": "failed", "stage": stage, "error": _error(out), "log": str(log_file)}
+
+
 def _error(text: str) -> list[str]:
     """The last lines of a failed command that say what went wrong (not Hydra's hint)."""
     lines = [ln for ln in text.strip().splitlines() if ln.strip() and "HYDRA_FULL_ERROR" not in ln]
@@ -173,37 +178,19 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
         synth = [f"synth.object={case.object}", f"synth.out={data}", *case.synth_overrides()]
         rc, out = _run([sys.executable, "experiments/generate.py", *common, *synth, *args.set], log_file)
         if rc != 0:
-            return {
-                **rec,
-                "status": "failed",
-                "stage": "generate",
-                "error": _error(out),
-                "log": str(log_file),
-            }
+            return _failed(rec, "generate", out, log_file)
         rec["generate_seconds"] = time.time() - t0
         cmd = [sys.executable, "experiments/reconstruct.py", *common, f"sequence={data}"]
         cmd += [f"recon.output_dir={runs}", f"recon.run_name={case.id}", *args.set]
         rc, out = _run(cmd, log_file)
         if rc != 0:
-            return {
-                **rec,
-                "status": "failed",
-                "stage": "reconstruct",
-                "error": _error(out),
-                "log": str(log_file),
-            }
+            return _failed(rec, "reconstruct", out, log_file)
     rec["reconstruct_seconds"] = time.time() - t0 - rec.get("generate_seconds", 0.0)
     rec["effect_sizes"] = effect_sizes(data)
     cmd = [sys.executable, "experiments/diagnose.py", *common, f"diagnose.run={run_dir}", *args.set]
     rc, out = _run(cmd, log_file)
     if rc != 0:
-        return {
-            **rec,
-            "status": "failed",
-            "stage": "diagnose",
-            "error": _error(out),
-            "log": str(log_file),
-        }
+        return _failed(rec, "diagnose", out, log_file)
     diag = json.loads((run_dir / "diagnose" / "diagnosis.json").read_text())
     rec.update(status="ok", cause=diag["cause"], correct=diag["cause"] == case.expected, truth=diag.get("truth", {}))
     rec["candidates"] = {

@@ -54,6 +54,8 @@ class SimulateConfig:
 
 @dataclass
 class ReconConfig:
+    model: str = "spring_mass"  # the dynamic model (set by the method): spring_mass (Spring-Gaus) | pacnerf | ...
+    #                             (sgdr.pipeline.run.MODELS; docs/baselines.md)
     iterations: int = 200  # dynamic-reconstruction passes over the fit frames
     lambda_dssim: float = 0.05  # λ of the dynamic loss
     substep_growth: list[float] = field(default_factory=lambda: [1.0, 1.5, 2.0])  # n_t = physics.n_substeps x
@@ -122,6 +124,7 @@ SIMULATE_CHECKS = {
     "momentum_tolerance": positive(),
 }
 CHECKS = {
+    "model": choice("sgdr.pipeline.run:MODELS"),
     "iterations": non_negative("0: no dynamic passes, the start values are kept"),
     "lambda_dssim": between(0.0, 1.0),
     "substep_growth": list_of(positive(), min_len=1),

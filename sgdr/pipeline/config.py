@@ -69,6 +69,8 @@ class ReconConfig:
     v0_iterations: int = 100  # Adam steps of the initial-velocity stage
     refine_iterations: int = 300  # Adam steps refining scale, colour, opacity at IDW positions
     force: bool = False  # redo stages whose outputs exist
+    share_stages: bool = True  # copy a stage with the same key (config, seed, data, inputs) from another run folder
+    #                            of the same sequence beside this one (e.g. the static fit another method made)
     # ---- added by the pipeline (issue 6)
     mode: str = "truncated"  # "truncated" (official: per frame, detached state, Adam step per
     #                          frame, one random camera) | "full" (backprop through all fit

@@ -196,7 +196,15 @@ class RunOutputs:
 # recon fields that change no stage's outputs: where the run goes, whether to redo, how many
 # processes score the EMD (the scores do not depend on it), how often to checkpoint (a resume
 # is exact), and the settings of experiments/simulate.py.
-RECON_NEVER_IN_KEYS = ("output_dir", "run_name", "force", "eval_workers", "checkpoint_every", "simulate")
+RECON_NEVER_IN_KEYS = (
+    "output_dir",
+    "run_name",
+    "force",
+    "eval_workers",
+    "checkpoint_every",
+    "simulate",
+    "share_stages",
+)
 # recon fields that only one stage reads: the other stages leave them out of their keys (a
 # stage after it sees them through its input digests). A recon field in none of these lists
 # is in the key of every stage that reads `recon`.
@@ -493,9 +501,25 @@ class RunInterrupted(Exception):
     """Ctrl-C during a run; the message says what was saved and how to resume."""
 
 
+def sibling_runs(run_dir: Path, seq_hash: str) -> list[Path]:
+    """The other run folders beside `run_dir` that belong to the same sequence (RUN.json's digest):
+    another method's or seed's run of the same data, whose stages with the same key (e.g. the
+    static fit every method shares) a run copies instead of recomputing (`recon.share_stages`)."""
+    out = []
+    for owner in sorted(Path(run_dir).parent.glob(f"*/{OWNER}")):
+        if owner.parent.resolve() == Path(run_dir).resolve():
+            continue
+        with contextlib.suppress(ValueError, KeyError, TypeError, OSError):
+            if json.loads(owner.read_text())["digest"] == seq_hash:
+                out.append(owner.parent)
+    return out
+
+
 def _run_stages(cfg, seq, seq_hash: str, run_dir: Path, tracker, progress: bool) -> RunOutputs:
-    """Run `PIPELINE` in order through the stage runner (skip, resume or redo each stage)."""
-    runner = StageRunner(run_dir, force=cfg.recon.force)
+    """Run the model's stages in order through the stage runner (skip, copy from a sibling run,
+    resume or redo each stage)."""
+    donors = sibling_runs(run_dir, seq_hash) if cfg.recon.share_stages else []
+    runner = StageRunner(run_dir, force=cfg.recon.force, donors=donors)
     ctx = RunContext(cfg, seq, tracker, progress)
     stages: dict[str, StageResult] = {}
     pipeline = model_stages(cfg)

@@ -231,7 +231,9 @@ def read_run(output_dir: Path, method: str, obj: str, preset: str, seed: int, av
     if not available:
         return Run(method, obj, path, None, f"method not in this checkout (no conf/method/{method}.yaml)")
     if path.is_dir():
-        return Run(method, obj, path, None, f"unfinished or failed: no metrics.json in {path} (see its reconstruct.log)")
+        return Run(
+            method, obj, path, None, f"unfinished or failed: no metrics.json in {path} (see its reconstruct.log)"
+        )
     return Run(method, obj, path, None, f"not run (no {path})")
 
 
@@ -280,12 +282,25 @@ def table_cells(spec: TableSpec, runs: dict[tuple[str, str], Run]) -> list[Cell]
                 value, status, reason = _score(run, metric.key)
                 values.append(value)
                 cells.append(
-                    Cell(spec.number, metric.key, method, obj, value, paper.get(obj), status, reason, str(run.path), run.commit)
+                    Cell(
+                        spec.number,
+                        metric.key,
+                        method,
+                        obj,
+                        value,
+                        paper.get(obj),
+                        status,
+                        reason,
+                        str(run.path),
+                        run.commit,
+                    )
                 )
             if spec.per_object:
                 have = [v for v in values if v is not None]
                 if len(have) == len(values):
-                    cells.append(Cell(spec.number, metric.key, method, MEAN, sum(have) / len(have), paper.get(MEAN), "ok"))
+                    cells.append(
+                        Cell(spec.number, metric.key, method, MEAN, sum(have) / len(have), paper.get(MEAN), "ok")
+                    )
                 else:
                     why = f"{len(values) - len(have)} of {len(values)} objects have no number"
                     cells.append(Cell(spec.number, metric.key, method, MEAN, None, paper.get(MEAN), "missing", why))
@@ -378,7 +393,11 @@ def table_grid(spec: TableSpec, cells: Sequence[Cell]) -> tuple[list[str], list[
     if spec.per_object:
         header = ["metric", "method", *spec.columns]
         rows = [
-            [m.label, METHOD_LABELS.get(method, method), *(_cell_text(by[(m.key, method, o)], m, notes) for o in spec.columns)]
+            [
+                m.label,
+                METHOD_LABELS.get(method, method),
+                *(_cell_text(by[(m.key, method, o)], m, notes) for o in spec.columns),
+            ]
             for m in spec.metrics
             for method in spec.methods
         ]
@@ -417,7 +436,9 @@ def collect(
         for method in spec.methods:
             for obj in spec.objects:
                 if (method, obj) not in runs:
-                    runs[(method, obj)] = read_run(output_dir, method, obj, preset, seed, method_available(method, conf_dir))
+                    runs[(method, obj)] = read_run(
+                        output_dir, method, obj, preset, seed, method_available(method, conf_dir)
+                    )
     cells = [c for spec in tables for c in table_cells(spec, runs)]
     return Results(cells, runs, future_cd_ratio(cells), table3_direction(cells), dict(meta or {}))
 
@@ -541,8 +562,10 @@ def html_page(res: Results, tables: Sequence[TableSpec] = TABLES) -> str:
     intro = "".join(paragraph(s) for s in _provenance_lines(res.meta))
     if stale:
         intro += paragraph(f"Runs made on another commit than this one: {', '.join(stale)}")
-    intro += paragraph(UNITS) + paragraph(f"Ratio. {res.ratio['sentence']}") + paragraph(
-        f"Direction. {res.direction['sentence']}"
+    intro += (
+        paragraph(UNITS)
+        + paragraph(f"Ratio. {res.ratio['sentence']}")
+        + paragraph(f"Direction. {res.direction['sentence']}")
     )
     nav = "<nav>" + "".join(f'<a href="#{s.anchor}">{esc(s.title)}</a>' for s in sections) + "</nav>"
     body = "".join(f'<section id="{s.anchor}"><h2>{esc(s.title)}</h2>{s.body}</section>' for s in sections)
@@ -602,7 +625,11 @@ def needed_cells(
     for spec in tables:
         for obj in spec.objects:
             for method in spec.methods:
-                if (method, obj) not in out and (methods is None or method in methods) and (objects is None or obj in objects):
+                if (
+                    (method, obj) not in out
+                    and (methods is None or method in methods)
+                    and (objects is None or obj in objects)
+                ):
                     out.append((method, obj))
     return out
 
@@ -622,15 +649,21 @@ def plan_multiruns(cells: Sequence[tuple[str, str]]) -> list[tuple[tuple[str, ..
 LAUNCHERS = ("joblib", "submitit_local", "submitit_slurm", "slurm", "basic")
 
 
-def launcher_overrides(launcher: str, jobs: int) -> list[str]:
-    """Hydra overrides choosing the launcher and its parallelism."""
+def launcher_overrides(launcher: str, jobs: int, threads: int) -> list[str]:
+    """Hydra overrides choosing the launcher and its parallelism, and each run's share of the
+    machine: `threads` Dr.Jit threads and as many processes for the evaluation's EMDs
+    (`recon.eval_workers`; on a cluster node every CPU of the job, the default)."""
     if launcher == "basic":
-        return []
-    out = [f"hydra/launcher={launcher}"]
+        return [f"threads={threads}", f"recon.eval_workers={threads}"]
+    if launcher in ("submitit_slurm", "slurm"):  # a node of its own: the job's CPUs (or --threads)
+        return [f"hydra/launcher={launcher}", *([f"threads={threads}"] if threads else [])]
+    out = [f"hydra/launcher={launcher}", f"threads={threads}"]
     if launcher == "joblib":
-        out.append(f"hydra.launcher.n_jobs={jobs}")
+        # the EMDs in the run's own process: a loky worker's spawned children fail to start
+        # ("cannot find context for 'loky'": they inherit loky's start method, unknown to them)
+        out += [f"hydra.launcher.n_jobs={jobs}", "recon.eval_workers=1"]
     elif launcher == "submitit_local":  # the local executor starts every job of a batch at once
-        out.append(f"hydra.sweeper.max_batch_size={jobs}")
+        out += [f"hydra.sweeper.max_batch_size={jobs}", f"recon.eval_workers={threads}"]
     return out
 
 
@@ -676,7 +709,9 @@ class Progress:
             )
             minutes = m.get("minutes")
             took = f"{minutes:.1f} min" if isinstance(minutes, (int, float)) else "?"
-            print(f"[reproduce] {self.done}/{self.total} {cell[0]} on {cell[1]} finished ({took}; {scores})", flush=True)
+            print(
+                f"[reproduce] {self.done}/{self.total} {cell[0]} on {cell[1]} finished ({took}; {scores})", flush=True
+            )
 
 
 def run_logged(cmd: list[str], log_path: Path, env: dict) -> int:
@@ -695,6 +730,18 @@ def _tail(path: Path, n: int = 15) -> str:
         return ""
 
 
+def prepare_store(overrides: list[str]) -> None:
+    """Create the MLflow store and experiment the runs log to before parallel jobs start (two
+    jobs creating a fresh SQLite store at once race on its schema migration)."""
+    from omegaconf import OmegaConf
+
+    from sgdr.config import compose
+    from sgdr.tracking.tracker import ensure_store
+
+    cfg = compose([o for o in overrides if not o.lstrip("+~").startswith("hydra")])
+    ensure_store(OmegaConf.to_object(cfg.tracking))
+
+
 def reproduce(args, overrides: list[str]) -> tuple[list[str], bool]:
     """Generate and run the unfinished cells; returns (the commands run, whether all succeeded)."""
     out_dir, data_dir = Path(args.output_dir), Path(args.data_dir)
@@ -708,7 +755,9 @@ def reproduce(args, overrides: list[str]) -> tuple[list[str], bool]:
     todo = cells if args.rerun else [c for c in cells if c not in finished]
     done = len(cells) - len(todo)
     if finished and not args.rerun:
-        print(f"[reproduce] {len(finished)}/{len(cells)} cells finished before, skipped (--rerun redoes them)", flush=True)
+        print(
+            f"[reproduce] {len(finished)}/{len(cells)} cells finished before, skipped (--rerun redoes them)", flush=True
+        )
     common = [f"preset={args.preset}", f"seed={args.seed}", f"data_dir={data_dir}", f"recon.output_dir={out_dir}"]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
     log_path = out_dir / "multirun" / f"reproduce_{args.preset}.log"
@@ -718,11 +767,16 @@ def reproduce(args, overrides: list[str]) -> tuple[list[str], bool]:
     objects = sorted({o for _, o in todo})
     gen = [sys.executable, "experiments/generate.py", "-m", *common, f"synth.object={','.join(objects)}", *overrides]
     commands.append(shlex.join(gen))
-    print(f"[reproduce] sequences: {', '.join(objects)} into {data_dir} (complete ones skipped; log {log_path})", flush=True)
+    print(
+        f"[reproduce] sequences: {', '.join(objects)} into {data_dir} (complete ones skipped; log {log_path})",
+        flush=True,
+    )
     if run_logged(gen, log_path, env) != 0:
         print(f"[reproduce] generation failed:\n{_tail(log_path)}", file=sys.stderr, flush=True)
         return commands, False
-    threads = args.threads or max(1, (os.cpu_count() or 1) // max(1, args.jobs))
+    prepare_store(common + overrides)
+    cluster = args.launcher in ("submitit_slurm", "slurm")
+    threads = args.threads or (0 if cluster else max(1, (os.cpu_count() or 1) // max(1, args.jobs)))
     for methods, objs in plan_multiruns(todo):
         cmd = [
             sys.executable,
@@ -731,15 +785,15 @@ def reproduce(args, overrides: list[str]) -> tuple[list[str], bool]:
             *common,
             f"method={','.join(methods)}",
             f"synth.object={','.join(objs)}",
-            f"threads={threads}",
-            *launcher_overrides(args.launcher, args.jobs),
+            *launcher_overrides(args.launcher, args.jobs, threads),
             *overrides,
         ]
         commands.append(shlex.join(cmd))
         batch = [(m, o) for m in methods for o in objs]
         print(
             f"[reproduce] multirun: {len(batch)} cells (method={','.join(methods)} x synth.object={','.join(objs)}), "
-            f"launcher {args.launcher}, {args.jobs} jobs x {threads} threads",
+            f"launcher {args.launcher}, "
+            + ("one job per cell" if cluster else f"{args.jobs} jobs x {threads} threads"),
             flush=True,
         )
         with Progress(batch, paths, len(cells), done) as progress:
@@ -764,7 +818,7 @@ def parse_args(argv: Sequence[str]):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--launcher", default="joblib", choices=LAUNCHERS, help="hydra/launcher of the multiruns")
     p.add_argument("--jobs", type=int, default=2, help="runs at once (joblib n_jobs; submitit_local batch size)")
-    p.add_argument("--threads", type=int, default=0, help="Dr.Jit threads per run (0: cores // jobs)")
+    p.add_argument("--threads", type=int, default=0, help="Dr.Jit threads per run (0: cores // jobs; slurm: the job's)")
     p.add_argument("--output-dir", default="outputs", help="recon.output_dir: where the run folders are")
     p.add_argument("--data-dir", default=None, help="data_dir (default: data at small, data/<preset> otherwise)")
     p.add_argument("--results", default=None, help="where the tables go (default: results at small, results/<preset>)")

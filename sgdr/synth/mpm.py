@@ -391,7 +391,9 @@ def frozen_substep():
     """
     global _frozen_substep
     if _frozen_substep is None:
-        _frozen_substep = dr.freeze(substep)
+        # one recording per distinct model (time step, particle and batch sizes): the PAC-NeRF
+        # baseline's search records one per round (sgdr.baselines.pacnerf), which is not a misuse
+        _frozen_substep = dr.freeze(substep, warn_after=100)
     return _frozen_substep
 
 

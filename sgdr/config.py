@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 
 from sgdr.anchors import config as anchors_config
 from sgdr.anchors.config import AnchorConfig
+from sgdr.baselines import config as baseline_config
+from sgdr.baselines.config import BaselineConfig
 from sgdr.checks import ConfigError, any_text, choice, non_empty_text, non_negative, section_problems
 from sgdr.discrepancy import config as diagnose_config
 from sgdr.discrepancy.config import DiagnoseConfig
@@ -58,6 +60,7 @@ class Config:
     posterior: PosteriorConfig = field(default_factory=PosteriorConfig)  # experiments/posterior.py
     diagnose: DiagnoseConfig = field(default_factory=DiagnoseConfig)  # experiments/diagnose.py
     realcap: RealCaptureSimConfig = field(default_factory=RealCaptureSimConfig)  # experiments/simulate_capture.py
+    baseline: BaselineConfig = field(default_factory=BaselineConfig)  # the baselines' methods (sgdr.baselines)
 
 
 # ---------------------------------------------------------------------------- checks
@@ -88,6 +91,9 @@ SECTION_CHECKS = {
     "diagnose": diagnose_config.CHECKS,
     "posterior.priors": posterior_config.PRIOR_CHECKS,
     "realcap": realcap_config.CHECKS,
+    "baseline": baseline_config.CHECKS,
+    "baseline.dyngaus": baseline_config.DYNGAUS_CHECKS,
+    "baseline.deform4d": baseline_config.DEFORM4D_CHECKS,
 }
 
 

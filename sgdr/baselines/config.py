@@ -25,14 +25,16 @@ class DynGausConfig:
     # method
     rotations: bool = True  # also optimise a rotation per Gaussian (the rigidity prior's R_i); false: centres only
     extrapolate: bool = True  # start frame t from t-1 plus the last frame's velocity (Luiten et al.'s init)
-    views_per_step: int = 0  # random views rendered per Adam step (0 = every view)
-    lr_means: float = 1e-3  # Adam learning rate of the centres, scene units
+    views_per_step: int = 2  # random views rendered per Adam step (0 = every view; Luiten et al.: 1)
+    lr_means: float = 3e-3  # Adam learning rate of the centres, scene units
     lr_rotations: float = 1e-2  # Adam learning rate of the rotation quaternions (unit length)
     lambda_dssim: float = 0.2  # λ of the image loss (1-λ) L1 + λ D-SSIM
     weight_falloff: float = 1.0  # λ_w of the neighbour weights w_ij = exp(-λ_w (d_ij / d̄)²), d̄: mean kNN distance
-    w_rigid: float = 4.0  # weight of the local-rigidity prior (Luiten et al.: 4)
-    w_rot: float = 4.0  # weight of the rotation-similarity prior (Luiten et al.: 4; only with rotations)
-    w_iso: float = 2.0  # weight of the isometry prior (Luiten et al.: 2)
+    # the priors' weights keep Luiten et al.'s ratios 4 : 4 : 2, scaled by 0.1 for our d̄-relative priors
+    # (at 4 : 4 : 2 the rigid twin's centre error was 4-40x larger: the priors held the images off; docs/baselines.md)
+    w_rigid: float = 0.4  # weight of the local-rigidity prior
+    w_rot: float = 0.4  # weight of the rotation-similarity prior (only with rotations)
+    w_iso: float = 0.2  # weight of the isometry prior
 
 
 @dataclass
@@ -47,9 +49,9 @@ class Deform4DConfig:
     # method
     init: str = "sequential"  # how the grids start: sequential (frame by frame, each from the last) | zero
     extrapolate: bool = True  # sequential start: frame t's grid from t-1's plus the last frame's change
-    views_per_step: int = 0  # random views rendered per frame and Adam step (0 = every view)
+    views_per_step: int = 2  # random views rendered per frame and Adam step (0 = every view)
     box_margin: float = 0.1  # the grid's box: the frame-0 centres' box padded by this fraction of its size per side
-    lr: float = 1e-3  # Adam learning rate of the grid displacements, scene units
+    lr: float = 3e-3  # Adam learning rate of the grid displacements, scene units
     lambda_dssim: float = 0.2  # λ of the image loss (1-λ) L1 + λ D-SSIM
     tv: str = "l2"  # kind of the spatial smoothness penalty on the grid (sgdr.baselines.deform4d.TV_PENALTIES)
     w_tv: float = 1e-3  # weight of the spatial penalty (differences of neighbouring nodes / cell size)

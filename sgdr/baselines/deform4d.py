@@ -193,7 +193,11 @@ def time_smoothness(reg: _Regulariser, values) -> object:
     if dr.width(reg.t_mid) == 0:
         return t.Float(0.0)
     mid = dr.gather(t.Array3f, values, reg.t_mid)
-    acc = dr.gather(t.Array3f, values, reg.t_next) - 2.0 * mid + reg.t_prev_live * dr.gather(t.Array3f, values, reg.t_prev)
+    acc = (
+        dr.gather(t.Array3f, values, reg.t_next)
+        - 2.0 * mid
+        + reg.t_prev_live * dr.gather(t.Array3f, values, reg.t_prev)
+    )
     return dr.sum(dr.squared_norm(acc)) * (reg.inv_h_mean**2 / float(dr.width(reg.t_mid)))
 
 

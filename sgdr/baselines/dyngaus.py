@@ -177,7 +177,6 @@ def track_gaussians(
     for f, views in enumerate(targets):
         if len(views) != len(cameras):
             raise DynGausError(f"dyngaus: frame {f} has {len(views)} target views, expected {len(cameras)} (cameras)")
-    t = ad()
     g = gaussians.detach()
     m = g.count
     mu0 = array3_to_points(g.means)  # [M, 3]

@@ -1,8 +1,8 @@
 """Table 2's other rows (issue 16 §4), simplified: Dy-Gaus-style tracking and 4D-Gaus-style grids.
 
-Twins whose answer is known: a cube of Gaussians with a colour gradient, moved by a known rigid
-motion (rotation + translation) or a known smooth deformation (twist + translation) and rendered
-by sgdr's splatting renderer as the targets. Each baseline must bring the centres' mean error down
+Twins whose answer is known (`sgdr.baselines.twin`): a cube of Gaussians with a colour gradient,
+moved by a known rigid motion (rotation + translation) or a known smooth deformation (twist +
+translation) and rendered by sgdr's splatting renderer as the targets. Each baseline must bring the centres' mean error down
 to a small fraction of the motion; the priors and the grid penalties are checked against values
 known in closed form; a prior must do what it is for (isometry keeps neighbour distances); bad
 config values fail naming their key; the presets set the baselines' scale and nothing else.
@@ -31,88 +31,47 @@ from sgdr.baselines.deform4d import (
     time_smoothness,
 )
 from sgdr.baselines.dyngaus import neighbour_pairs, priors, track_gaussians
-from sgdr.cameras import Camera
+from sgdr.baselines.twin import cube_twin
 from sgdr.checks import ConfigError
 from sgdr.config import compose, validate
-from sgdr.gaussians.model import Gaussians
-from sgdr.identify.common import posed, render_rgb_numpy, to_tensor
-from sgdr.render.config import RenderConfig
 
-CENTRE = np.array([0.5, 0.5, 0.2])
 N_FRAMES = 4  # fit frames 0..3: three moving frames
-STEP = np.array([0.015, -0.01, -0.02])  # translation per frame, scene units (the cube's side is 0.16)
-
-
-def _rigid(c, f):
-    """Frame f of the rigid twin: 6° per frame about a tilted axis through the centre, plus f STEP."""
-    axis = np.array([0.3, 0.2, 1.0]) / np.linalg.norm([0.3, 0.2, 1.0])
-    return Rotation.from_rotvec(np.deg2rad(6.0 * f) * axis).apply(c - CENTRE) + CENTRE + f * STEP
-
-
-def _twist(c, f):
-    """Frame f of the smooth twin: a twist about z of 10° per frame at the top (0 in the middle,
-    opposite at the bottom), plus f STEP."""
-    p = c - CENTRE
-    th = np.deg2rad(10.0 * f) * p[:, 2] / 0.08
-    x, y = np.cos(th) * p[:, 0] - np.sin(th) * p[:, 1], np.sin(th) * p[:, 0] + np.cos(th) * p[:, 1]
-    return np.stack([x, y, p[:, 2]], axis=1) + CENTRE + f * STEP
 
 
 @pytest.fixture(scope="module")
-def twin():
-    rng = np.random.default_rng(0)
-    centres = rng.uniform(-0.08, 0.08, (250, 3)) + CENTRE
-    colours = 0.2 + 0.6 * (centres - centres.min(0)) / np.ptp(centres, 0)
-    g = Gaussians.isotropic(centres, 0.02, colours, 0.9)
-    cams = [
-        Camera.look_at(CENTRE + 0.7 * np.array(d), CENTRE, [0, 0, 1], 50.0, 32, 32, f"c{i}")
-        for i, d in enumerate([(1, 0, 0.3), (0, 1, 0.3), (-0.7, -0.7, 0.5), (0.7, -0.7, 0.6)])
-    ]
-    rcfg = RenderConfig()
-
-    def sequence(motion):
-        truth = np.stack([motion(centres, f) for f in range(N_FRAMES)])  # [F, M, 3]
-        targets = [
-            [to_tensor(render_rgb_numpy(posed(g, points_to_array3(truth[f])), c, rcfg)) for c in cams]
-            for f in range(N_FRAMES)
-        ]
-        return truth, targets
-
-    return dict(g=g, cams=cams, rcfg=rcfg, rigid=sequence(_rigid), twist=sequence(_twist))
+def rigid():
+    return cube_twin("rigid", n_gaussians=250, n_frames=N_FRAMES)
 
 
-def _error_ratio(centres, truth):
-    """Per moving frame: mean centre error / mean motion since frame 0."""
-    err = np.linalg.norm(centres - truth, axis=-1).mean(1)
-    motion = np.linalg.norm(truth - truth[0], axis=-1).mean(1)
-    return err[1:] / motion[1:]
+@pytest.fixture(scope="module")
+def twist():
+    return cube_twin("twist", n_gaussians=250, n_frames=N_FRAMES)
 
 
 # ---------------------------------------------------------------------------- Dy-Gaus-style tracking
-def test_dyngaus_tracks_a_rigid_motion(twin):
-    truth, targets = twin["rigid"]
-    cfg = DynGausConfig(iterations=60, n_neighbours=8)
-    res = track_gaussians(twin["g"], targets, twin["cams"], twin["rcfg"], cfg, seed=0)
+def test_dyngaus_tracks_a_rigid_motion(rigid):
+    cfg = DynGausConfig(iterations=80, n_neighbours=8)
+    res = track_gaussians(rigid.gaussians, rigid.targets, rigid.cameras, rigid.render_cfg, cfg, seed=0)
     assert res.centres.shape == (N_FRAMES, 250, 3)
-    np.testing.assert_allclose(res.centres[0], array3_to_points(twin["g"].means))  # frame 0 as given
-    ratio = _error_ratio(res.centres, truth)
-    # measured 0.068 / 0.007 / 0.005 (docs/baselines.md); frame 1 has no velocity to extrapolate
-    assert ratio.max() < 0.15, ratio
+    np.testing.assert_allclose(res.centres[0], rigid.truth[0], atol=1e-6)  # frame 0 as given
+    ratio = rigid.error_ratio(res.centres)
+    # measured 0.049 / 0.009 / 0.006 (docs/baselines.md); frame 1 has no velocity to extrapolate
+    assert ratio.max() < 0.12 and ratio[-1] < 0.03, ratio
     frames = np.asarray(res.step_frames)
-    assert len(res.losses) == 3 * 60 and set(frames) == {1, 2, 3}
+    assert len(res.losses) == 3 * 80 and set(frames) == {1, 2, 3}
     assert res.image_losses[frames == 1][-5:].mean() < 0.2 * res.image_losses[frames == 1][0]
 
 
-def test_isometry_prior_keeps_neighbour_distances(twin):
+def test_isometry_prior_keeps_neighbour_distances(rigid):
     """The interior Gaussians are hidden from every view: the images alone leave them where they
     started; the isometry prior alone (no rigidity, no rotations) pulls them along."""
-    truth, targets = twin["rigid"]
+    truth = rigid.truth
     base = DynGausConfig(iterations=30, n_neighbours=8, rotations=False, views_per_step=0, w_rigid=0.0, w_rot=0.0)
     pairs = neighbour_pairs(truth[0], 8, 1.0).pairs
     rest = np.linalg.norm(truth[0][pairs[:, 1]] - truth[0][pairs[:, 0]], axis=1)
 
     def distortion(cfg):
-        c = track_gaussians(twin["g"], targets, twin["cams"], twin["rcfg"], cfg, seed=0).centres[-1]
+        c = track_gaussians(rigid.gaussians, rigid.targets, rigid.cameras, rigid.render_cfg, cfg, seed=0).centres[-1]
         return np.abs(np.linalg.norm(c[pairs[:, 1]] - c[pairs[:, 0]], axis=1) - rest).mean() / rest.mean()
 
     without, with_iso = distortion(replace(base, w_iso=0.0)), distortion(replace(base, w_iso=1.0))
@@ -149,14 +108,13 @@ def test_priors_vanish_under_the_true_rigid_motion_and_not_otherwise():
 
 
 # ---------------------------------------------------------------------------- 4D-Gaus-style grids
-def test_deform4d_follows_a_smooth_deformation(twin):
-    truth, targets = twin["twist"]
+def test_deform4d_follows_a_smooth_deformation(twist):
     cfg = Deform4DConfig(iterations=30, warmup_iterations=40, grid_resolution=6)
-    res = fit_deformation(twin["g"], targets, twin["cams"], twin["rcfg"], cfg, seed=0)
+    res = fit_deformation(twist.gaussians, twist.targets, twist.cameras, twist.render_cfg, cfg, seed=0)
     assert res.centres.shape == (N_FRAMES, 250, 3)
-    np.testing.assert_allclose(res.centres[0], array3_to_points(twin["g"].means))
-    ratio = _error_ratio(res.centres, truth)
-    assert ratio.max() < 0.12, ratio  # measured 0.07 / 0.05 / 0.04 (docs/baselines.md)
+    np.testing.assert_allclose(res.centres[0], twist.truth[0], atol=1e-6)
+    ratio = twist.error_ratio(res.centres)
+    assert ratio.max() < 0.12, ratio  # measured 0.059-0.068 / 0.046 / 0.031-0.034 (docs/baselines.md)
     joint = np.asarray(res.step_frames) == -1
     assert joint.sum() == 30 and (~joint).sum() == 3 * 40
     assert res.image_losses[joint][-1] < res.image_losses[joint][0]

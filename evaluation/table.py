@@ -33,15 +33,23 @@ def _fmt(fmt: str, value) -> str:
     return "-" if value is None else fmt.format(value)
 
 
+def identified_text(ident: dict) -> str:
+    """The identified values of one run in a few words, whichever model made it."""
+    if not ident:
+        return "-"
+    if "log10_k_mean" in ident:  # the spring-mass model
+        return (
+            f"log10 k {ident['log10_k_mean']:.2f} ± {ident['log10_k_std']:.2f}, κ {ident['kappa']:.2f}, "
+            f"μ {ident['friction']:.2f}, e {ident['restitution']:.2f}"
+        )
+    if "E" in ident:  # the PAC-NeRF baseline
+        return f"E {ident['E']:.3g} Pa, ν {ident['nu']:.2f}"
+    return ", ".join(f"{k} {v:.3g}" for k, v in ident.items() if isinstance(v, (int, float))) or "-"
+
+
 def row(metrics: dict) -> list[str]:
     """Table cells of one run's metrics.json."""
-    ident = metrics.get("identified", {})
-    params = (
-        f"log10 k {ident['log10_k_mean']:.2f} ± {ident['log10_k_std']:.2f}, κ {ident['kappa']:.2f}, "
-        f"μ {ident['friction']:.2f}, e {ident['restitution']:.2f}"
-        if ident
-        else "-"
-    )
+    params = identified_text(metrics.get("identified", {}))
     return [
         str(metrics.get("sequence_name", metrics.get("object", "?"))),
         *(_fmt(fmt, metrics.get(key)) for _, key, fmt in COLUMNS),

@@ -58,10 +58,20 @@ def main(cfg: DictConfig) -> None:
     print(f"report:       {report / 'report.html'} (open in a browser: verdict, warnings, curves, videos)")
     print(f"run folder:   {out.run_dir}")
     print(f"metrics:      {out.run_dir / 'metrics.json'}")
-    print(f"videos:       {report / 'side_by_side.mp4'} (ground truth | prediction), {report / 'future.mp4'}")
-    print(f"plots:        {report / 'metric_curves.png'}, {report / 'losses.png'}, {report / 'stiffness.png'}")
-    print(f"PLYs:         {report / 'ply'}/centres_*.ply, anchors_*.ply")
-    print(f"asset:        {out.run_dir / 'asset'} (python experiments/simulate.py recon.simulate.asset=...)")
+    videos = [p for p in (report / "side_by_side.mp4", report / "future.mp4") if p.is_file()]
+    if videos:
+        print(f"videos:       {', '.join(map(str, videos))} (ground truth | prediction)")
+    plots = sorted(report.glob("*.png"))
+    if plots:
+        print(f"plots:        {', '.join(map(str, plots))}")
+    if (report / "ply").is_dir():
+        print(f"PLYs:         {report / 'ply'}/centres_*.ply, anchors_*.ply")
+    if (out.run_dir / "asset" / "asset.json").is_file():
+        print(f"asset:        {out.run_dir / 'asset'} (python experiments/simulate.py recon.simulate.asset=...)")
+    elif (out.run_dir / "asset").is_dir():
+        print(
+            f"asset:        {out.run_dir / 'asset'} (the {out.metrics.get('model')} model's; simulate.py takes spring-mass assets)"
+        )
     store = resolve_uri(cfg.tracking.uri)  # a relative SQLite path is the repository root's
     print(f"MLflow store: {store} (mlflow ui --backend-store-uri {store})")
     print(

@@ -60,7 +60,7 @@ class Config:
     posterior: PosteriorConfig = field(default_factory=PosteriorConfig)  # experiments/posterior.py
     diagnose: DiagnoseConfig = field(default_factory=DiagnoseConfig)  # experiments/diagnose.py
     realcap: RealCaptureSimConfig = field(default_factory=RealCaptureSimConfig)  # experiments/simulate_capture.py
-    baseline: BaselineConfig = field(default_factory=BaselineConfig)  # the baselines' methods (sgdr.baselines)
+    baseline: BaselineConfig = field(default_factory=BaselineConfig)  # the paper's baselines (recon.model)
 
 
 # ---------------------------------------------------------------------------- checks
@@ -92,6 +92,7 @@ SECTION_CHECKS = {
     "posterior.priors": posterior_config.PRIOR_CHECKS,
     "realcap": realcap_config.CHECKS,
     "baseline": baseline_config.CHECKS,
+    "baseline.pacnerf": baseline_config.PACNERF_CHECKS,
     "baseline.dyngaus": baseline_config.DYNGAUS_CHECKS,
     "baseline.deform4d": baseline_config.DEFORM4D_CHECKS,
 }

@@ -192,8 +192,7 @@ def test_interrupt_says_what_was_saved(tmp_path, monkeypatch):
         run_mod.Stage("first", (), (), done, lambda ctx, out: "ok", reads_sequence=False),
         run_mod.Stage("second", (), ("first",), interrupted, lambda ctx, out: "ok", reads_sequence=False),
     )
-    monkeypatch.setattr(run_mod, "PIPELINE", stages)
-    monkeypatch.setattr(run_mod, "STAGE_SECTIONS", {"first": (), "second": ()})
+    monkeypatch.setitem(run_mod.MODELS, "spring_mass", run_mod.Model(stages, run_mod.spring_identified))
     with pytest.raises(run_mod.RunInterrupted) as err:
         run_mod._run_stages(_cfg(), SimpleNamespace(cameras=[]), "digest", tmp_path, None, False)
     msg = str(err.value)

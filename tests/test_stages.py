@@ -217,3 +217,24 @@ def test_a_run_folder_moved_elsewhere_resumes(tmp_path):
     shutil.copytree(tmp_path / "here", tmp_path / "there")
     assert StageRunner(tmp_path / "there").run("a", json.loads(json.dumps(key)), s.produce, s.load).skipped
     assert s.calls == 1
+
+
+def test_a_stage_with_the_same_key_is_copied_from_a_sibling_run(tmp_path):
+    """Another run folder's completed stage with the same key is copied and verified, not
+    recomputed; another key, or a damaged donor, is recomputed."""
+    a, b = _Counter(), _Counter(scale=2.0)
+    key = {"static_fit": {"iterations": 10}, "seed": 0, "sequence": "abc"}
+    first = StageRunner(tmp_path / "torus_small_s0").run("static", key, a.produce, a.load)
+    shared = StageRunner(tmp_path / "torus_small_pacnerf_s0", donors=[tmp_path / "torus_small_s0"]).run(
+        "static", key, b.produce, b.load
+    )
+    assert b.calls == 0 and shared.skipped and shared.digest == first.digest
+    np.testing.assert_array_equal(shared.value, np.arange(4.0))
+    assert (tmp_path / "torus_small_pacnerf_s0" / "static" / "DONE.json").is_file()
+    other = StageRunner(tmp_path / "torus_small_s1", donors=[tmp_path / "torus_small_s0"])
+    other.run("static", {**key, "seed": 1}, b.produce, b.load)
+    assert b.calls == 1  # another seed: its own stage
+    np.save(tmp_path / "torus_small_s0" / "static" / "value.npy", np.zeros(4))  # the donor edited
+    c = _Counter(scale=3.0)
+    StageRunner(tmp_path / "third", donors=[tmp_path / "torus_small_s0"]).run("static", key, c.produce, c.load)
+    assert c.calls == 1

@@ -115,6 +115,11 @@ def load_asset(path) -> Asset:
     root = Path(path)
     meta_file = root / "asset.json"
     if not meta_file.exists():
+        if (root / "pacnerf.json").is_file():
+            raise FileNotFoundError(
+                f"{root} is the PAC-NeRF baseline's MPM object (pacnerf.json), not a spring-mass asset: "
+                "experiments/simulate.py simulates spring-mass assets only"
+            )
         raise FileNotFoundError(f"{meta_file}: not an sgdr asset (asset.json missing)")
     meta = json.loads(meta_file.read_text())
     for key in ("physics", "anchors", "ground", "fps", "n_frames", "n_fit", "n_substeps", "cameras"):

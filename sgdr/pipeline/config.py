@@ -54,6 +54,8 @@ class SimulateConfig:
 
 @dataclass
 class ReconConfig:
+    model: str = "spring_mass"  # the dynamic model (set by the method): spring_mass (Spring-Gaus) | pacnerf | ...
+    #                             (sgdr.pipeline.run.MODELS; docs/baselines.md)
     iterations: int = 200  # dynamic-reconstruction passes over the fit frames
     lambda_dssim: float = 0.05  # λ of the dynamic loss
     substep_growth: list[float] = field(default_factory=lambda: [1.0, 1.5, 2.0])  # n_t = physics.n_substeps x
@@ -67,6 +69,8 @@ class ReconConfig:
     v0_iterations: int = 100  # Adam steps of the initial-velocity stage
     refine_iterations: int = 300  # Adam steps refining scale, colour, opacity at IDW positions
     force: bool = False  # redo stages whose outputs exist
+    share_stages: bool = True  # copy a stage with the same key (config, seed, data, inputs) from another run folder
+    #                            of the same sequence beside this one (e.g. the static fit another method made)
     # ---- added by the pipeline (issue 6)
     mode: str = "truncated"  # "truncated" (official: per frame, detached state, Adam step per
     #                          frame, one random camera) | "full" (backprop through all fit
@@ -122,6 +126,7 @@ SIMULATE_CHECKS = {
     "momentum_tolerance": positive(),
 }
 CHECKS = {
+    "model": choice("sgdr.pipeline.run:MODELS"),
     "iterations": non_negative("0: no dynamic passes, the start values are kept"),
     "lambda_dssim": between(0.0, 1.0),
     "substep_growth": list_of(positive(), min_len=1),

@@ -46,6 +46,7 @@ from sgdr.checks import ConfigError
 from sgdr.pipeline import flow
 from sgdr.pipeline.flow import RunContext
 from sgdr.pipeline.stages import StageResult, StageRunner, file_hash, key_hash
+from sgdr.registry import Registry
 
 log = logging.getLogger(__name__)
 
@@ -111,6 +112,79 @@ PIPELINE: tuple[Stage, ...] = (
 STAGES = tuple(st.name for st in PIPELINE)
 
 
+@dataclass(frozen=True)
+class Model:
+    """A dynamic model's pipeline (`recon.model`): its stages in order, and the summary of what
+    it identified for metrics.json (`identified(stages) -> dict`). Every model's dynamics stage
+    value holds `pass_losses` (a list, possibly empty), `eval_loss_initial` and `eval_loss_final`."""
+
+    stages: tuple[Stage, ...]
+    identified: Callable
+
+
+def spring_identified(stages: dict) -> dict:
+    """The spring-mass model's identified values, summarised (metrics.json `identified`)."""
+    dyn = stages["dynamics"].value
+    return {
+        "log10_k_mean": float(np.mean(dyn["log10_k"])),
+        "log10_k_std": float(np.std(dyn["log10_k"])),
+        "kappa": dyn["kappa"],
+        "friction": dyn["friction"],
+        "restitution": dyn["restitution"],
+        "v0": list(stages["velocity"].value["v0"]),
+    }
+
+
+def _baseline_models() -> dict:
+    """The baselines' pipelines: the shared stages (static fit, anchors, refine, v0) followed by
+    their own rows (`sgdr.pipeline.baselines_flow`)."""
+    from sgdr.pipeline import baselines_flow as bf
+
+    shared = tuple(st for st in PIPELINE if st.name in ("static", "anchors", "refine", "velocity"))
+    evaluate = next(st for st in PIPELINE if st.name == "evaluate")
+    pacnerf = shared + (
+        Stage("dynamics", ("baseline.pacnerf", "render"), ("refine", "velocity"), bf.pacnerf_produce, bf.pacnerf_load),
+        Stage(
+            "predict",
+            ("baseline.pacnerf", "render"),
+            ("dynamics", "refine", "velocity"),
+            bf.pacnerf_predict_produce,
+            bf.pacnerf_predict_load,
+            seeded=False,
+        ),
+        evaluate,
+        Stage(
+            "report",
+            ("recon", "baseline.pacnerf"),
+            ("predict", "evaluate", "dynamics", "velocity"),
+            bf.pacnerf_report_produce,
+            bf.report_load,
+            seeded=False,
+        ),
+        Stage(
+            "asset",
+            ("baseline.pacnerf",),
+            ("dynamics", "refine", "velocity"),
+            bf.pacnerf_asset_produce,
+            bf.pacnerf_asset_load,
+            seeded=False,
+        ),
+    )
+    return {"pacnerf": Model(pacnerf, bf.pacnerf_identified)}
+
+
+# The dynamic models a method chooses with `recon.model` (conf/method/): spring_mass is Spring-Gaus
+# (every method of the spring family: spring_gaus, official, the ablations), the others are the
+# paper's baselines (docs/baselines.md).
+MODELS = Registry("dynamic model", "recon.model", ConfigError, {"spring_mass": Model(PIPELINE, spring_identified)})
+MODELS.update(_baseline_models())
+
+
+def model_stages(cfg) -> tuple[Stage, ...]:
+    """The stages of `cfg.recon.model`'s pipeline."""
+    return MODELS.get_named(cfg.recon.model).stages
+
+
 @dataclass
 class RunOutputs:
     run_dir: Path
@@ -122,7 +196,15 @@ class RunOutputs:
 # recon fields that change no stage's outputs: where the run goes, whether to redo, how many
 # processes score the EMD (the scores do not depend on it), how often to checkpoint (a resume
 # is exact), and the settings of experiments/simulate.py.
-RECON_NEVER_IN_KEYS = ("output_dir", "run_name", "force", "eval_workers", "checkpoint_every", "simulate")
+RECON_NEVER_IN_KEYS = (
+    "output_dir",
+    "run_name",
+    "force",
+    "eval_workers",
+    "checkpoint_every",
+    "simulate",
+    "share_stages",
+)
 # recon fields that only one stage reads: the other stages leave them out of their keys (a
 # stage after it sees them through its input digests). A recon field in none of these lists
 # is in the key of every stage that reads `recon`.
@@ -130,6 +212,7 @@ RECON_STAGE_FIELDS = {
     "refine": ("refine_iterations", "lr_scale", "lr_color", "lr_opacity", "refine_lambda_dssim"),
     "velocity": ("v0_iterations", "lr_v0", "v0_lambda_dssim", "v0_views_per_step"),
     "dynamics": (
+        "model",
         "iterations",
         "lambda_dssim",
         "substep_growth",
@@ -160,15 +243,22 @@ def recon_section(cfg, stage: str) -> dict:
     return {k: v for k, v in plain(cfg.recon).items() if k not in others and k not in RECON_NEVER_IN_KEYS}
 
 
-# The config sections each stage reads, whole, in its key (besides seeds and input digests).
+# The config sections each stage of the spring-mass pipeline reads, whole, in its key (besides
+# seeds and input digests); a baseline's stages name their own (`MODELS`).
 STAGE_SECTIONS = {st.name: st.sections for st in PIPELINE}
 
 
-def stage_sections(cfg, stage: str) -> dict:
-    """{section: its whole config} for the sections `stage` reads (`recon` via `recon_section`)."""
-    return {
-        name: recon_section(cfg, stage) if name == "recon" else getattr(cfg, name) for name in STAGE_SECTIONS[stage]
-    }
+def _section(cfg, name: str):
+    for part in name.split("."):  # a dotted name is a nested section ("baseline.pacnerf")
+        cfg = getattr(cfg, part)
+    return cfg
+
+
+def stage_sections(cfg, stage: str, pipeline: tuple[Stage, ...] = PIPELINE) -> dict:
+    """{section: its whole config} for the sections `stage` of `pipeline` (default: the
+    spring-mass model's; a run passes its `model_stages`) reads (`recon` via `recon_section`)."""
+    sections = next(st.sections for st in pipeline if st.name == stage)
+    return {name: recon_section(cfg, stage) if name == "recon" else _section(cfg, name) for name in sections}
 
 
 # Top-level settings that act on every reconstruction, besides the stages' sections.
@@ -184,7 +274,7 @@ def tracked_sections(cfg, sequence_generated: bool) -> tuple[str, ...]:
     sequence is the default-located one (`<data_dir>/<synth.object>`: it names the data), and
     nothing with `sequence=`. Never oracle.*, tracking.* or recon.simulate.* (they do not act on
     a reconstruction); the oracle and simulate drivers log their own."""
-    sections = [*RUN_SETTINGS, *dict.fromkeys(s for st in PIPELINE for s in st.sections)]
+    sections = [*RUN_SETTINGS, *dict.fromkeys(s for st in model_stages(cfg) for s in st.sections)]
     if sequence_generated:
         sections.append("synth")
     elif not cfg.sequence:
@@ -366,7 +456,8 @@ def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> Run
             tracker.log_metrics({"dynamic_pass_loss": loss}, step=i)
         tracker.finish(metrics)
         tracker.log_artifact(run_dir / "report", "report")
-        tracker.log_artifact(run_dir / "asset", "asset")
+        if (run_dir / "asset").is_dir():
+            tracker.log_artifact(run_dir / "asset", "asset")
         out.metrics = metrics
     return out
 
@@ -394,14 +485,8 @@ def run_metrics(cfg, seq_root: Path, stages: dict[str, StageResult], t_sequence:
         "dynamic_loss_last_pass": passes[-1] if passes else None,
         "dynamic_eval_loss_initial": dyn["eval_loss_initial"],
         "dynamic_eval_loss_final": dyn["eval_loss_final"],
-        "identified": {
-            "log10_k_mean": float(np.mean(dyn["log10_k"])),
-            "log10_k_std": float(np.std(dyn["log10_k"])),
-            "kappa": dyn["kappa"],
-            "friction": dyn["friction"],
-            "restitution": dyn["restitution"],
-            "v0": list(stages["velocity"].value["v0"]),
-        },
+        "model": cfg.recon.model,
+        "identified": MODELS.get_named(cfg.recon.model).identified(stages),
         "momentum": stages["predict"].value.momentum if "predict" in stages else None,
         "stages_skipped": [n for n, r in stages.items() if r.skipped],
         "stage_seconds": {"sequence": t_sequence, **{n: r.seconds for n, r in stages.items()}},
@@ -416,15 +501,32 @@ class RunInterrupted(Exception):
     """Ctrl-C during a run; the message says what was saved and how to resume."""
 
 
+def sibling_runs(run_dir: Path, seq_hash: str) -> list[Path]:
+    """The other run folders beside `run_dir` that belong to the same sequence (RUN.json's digest):
+    another method's or seed's run of the same data, whose stages with the same key (e.g. the
+    static fit every method shares) a run copies instead of recomputing (`recon.share_stages`)."""
+    out = []
+    for owner in sorted(Path(run_dir).parent.glob(f"*/{OWNER}")):
+        if owner.parent.resolve() == Path(run_dir).resolve():
+            continue
+        with contextlib.suppress(ValueError, KeyError, TypeError, OSError):
+            if json.loads(owner.read_text())["digest"] == seq_hash:
+                out.append(owner.parent)
+    return out
+
+
 def _run_stages(cfg, seq, seq_hash: str, run_dir: Path, tracker, progress: bool) -> RunOutputs:
-    """Run `PIPELINE` in order through the stage runner (skip, resume or redo each stage)."""
-    runner = StageRunner(run_dir, force=cfg.recon.force)
+    """Run the model's stages in order through the stage runner (skip, copy from a sibling run,
+    resume or redo each stage)."""
+    donors = sibling_runs(run_dir, seq_hash) if cfg.recon.share_stages else []
+    runner = StageRunner(run_dir, force=cfg.recon.force, donors=donors)
     ctx = RunContext(cfg, seq, tracker, progress)
     stages: dict[str, StageResult] = {}
-    st = PIPELINE[0]
+    pipeline = model_stages(cfg)
+    st = pipeline[0]
     try:
-        for st in PIPELINE:
-            key = dict(stage_sections(cfg, st.name))
+        for st in pipeline:
+            key = dict(stage_sections(cfg, st.name, pipeline))
             if st.seeded:
                 key["seed"] = cfg.seed
             if st.reads_sequence:

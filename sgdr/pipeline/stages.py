@@ -176,10 +176,31 @@ class StageResult(Generic[T]):
 class StageRunner:
     """Runs stages in `run_dir/<name>/`, skipping verified completed ones (see module doc)."""
 
-    def __init__(self, run_dir, force: bool = False):
+    def __init__(self, run_dir, force: bool = False, donors=()):
+        """donors: other run folders whose completed stage of the same name and the same key is
+        copied instead of recomputed (verified there first, then here); see `run`."""
         self.run_dir = Path(run_dir)
         self.force = bool(force)
+        self.donors = [Path(d) for d in donors if Path(d).resolve() != self.run_dir.resolve()]
         self.run_dir.mkdir(parents=True, exist_ok=True)
+
+    def _from_donor(self, name: str, out_dir: Path, key: Any, khash: str, load: Callable[[Path], T]):
+        """Copy stage `name` from the first donor where it verifies with this key; the result of
+        verifying the copy here, or None."""
+        for donor in self.donors:
+            src = donor / name
+            if not (src / MARKER).is_file():
+                continue
+            ok, _, _, _ = self._verify(src, key, khash, load)
+            if not ok:
+                continue
+            self._clear_outputs(out_dir, keep_checkpoint=False)
+            shutil.copytree(src, out_dir, dirs_exist_ok=True, ignore=shutil.ignore_patterns(CHECKPOINT_DIR))
+            ok, _, value, digest = self._verify(out_dir, key, khash, load)
+            if ok:
+                log.info("stage %s: the same stage (same key) copied from %s", name, donor)
+                return value, digest
+        return None
 
     def stage_dir(self, name: str) -> Path:
         return self.run_dir / name
@@ -228,13 +249,19 @@ class StageRunner:
         t0 = time.perf_counter()
         out_dir = self.stage_dir(name)
         khash = key_hash(key)
-        if not self.force and out_dir.exists():
-            ok, reason, value, digest = self._verify(out_dir, key, khash, load)
-            if ok:
-                log.info("stage %s: complete and verified, skipped", name)
-                return StageResult(name, value, digest, out_dir, skipped=True, seconds=time.perf_counter() - t0)
-            log.warning("stage %s: redoing it, %s", name, reason)
-        elif self.force:
+        if not self.force:
+            reason = ""
+            if out_dir.exists():
+                ok, reason, value, digest = self._verify(out_dir, key, khash, load)
+                if ok:
+                    log.info("stage %s: complete and verified, skipped", name)
+                    return StageResult(name, value, digest, out_dir, skipped=True, seconds=time.perf_counter() - t0)
+            shared = self._from_donor(name, out_dir, key, khash, load) if self.donors else None
+            if shared is not None:
+                return StageResult(name, *shared, out_dir, skipped=True, seconds=time.perf_counter() - t0)
+            if reason:
+                log.warning("stage %s: redoing it, %s", name, reason)
+        else:
             log.info("stage %s: force=true, redoing it", name)
         self._clear_outputs(out_dir, keep_checkpoint=not self.force)
         out_dir.mkdir(parents=True, exist_ok=True)

@@ -62,10 +62,21 @@ class MPMModel:
     ground_normal: tuple  # (3,) unit normal pointing up, away from the ground
     wall_cells: int  # nodes this close to a domain side are slip walls
     plastic: bool  # apply the von Mises return mapping (params.yield_stress)
+    n_samples: int = 1  # independent simulations batched in one program, each on its own grid
+    sample: object = None  # UInt32 [P], the simulation of each particle (n_samples > 1); params.E/nu [n_samples]
 
     @property
     def n_particles(self) -> int:
         return dr.width(self.particle_mass)
+
+    def particle_E_nu(self, params):
+        """(E, ν) of every particle: the global values times the heterogeneity, or, for a batch,
+        the particle's own simulation's values (params.E, params.nu of width n_samples)."""
+        t = ad()
+        if self.n_samples == 1:
+            return params.E * self.particle_E_scale, params.nu
+        E = dr.gather(t.Float, params.E, self.sample)
+        return E * self.particle_E_scale, dr.gather(t.Float, params.nu, self.sample)
 
 
 @dataclass
@@ -260,14 +271,17 @@ def _offsets():
 def _node_index(model, base, i, j, k):
     t = ad()
     n = model.n_grid
-    return t.UInt32(((base.x + i) * n + (base.y + j)) * n + (base.z + k))
+    idx = t.UInt32(((base.x + i) * n + (base.y + j)) * n + (base.z + k))
+    if model.n_samples > 1:  # each simulation of a batch has its own n³ block of nodes
+        idx = idx + model.sample * (n**3)
+    return idx
 
 
 def p2g(model: MPMModel, params: MPMParams, state: MPMState):
     """Particle-to-grid: returns (grid mass Float [n³], grid momentum Array3f [n³])."""
     t = ad()
-    n3 = model.n_grid**3
-    mu, lam = lame(params.E * model.particle_E_scale, params.nu)
+    n3 = model.n_grid**3 * model.n_samples
+    mu, lam = lame(*model.particle_E_nu(params))
     tau = CONSTITUTIVE[model.material](state.F, mu, lam)
     m = model.particle_mass
     affine = (-model.dt * 4.0 / model.dx**2) * model.particle_vol * tau + m * state.C
@@ -288,7 +302,9 @@ def grid_update(model: MPMModel, params: MPMParams, grid_m, grid_p):
     """Grid velocities after gravity, drag, walls and the ground collider: Array3f [n³]."""
     t = ad()
     n = model.n_grid
-    idx = dr.arange(t.UInt32, n**3)
+    idx = dr.arange(t.UInt32, n**3 * model.n_samples)
+    if model.n_samples > 1:
+        idx = idx % (n**3)  # the node within its simulation's block
     ijk = t.Array3i(t.Int(idx // (n * n)), t.Int((idx // n) % n), t.Int(idx % n))
     v = dr.select(grid_m > 0, grid_p / dr.maximum(grid_m, 1e-30), 0.0)
     v = (v + model.dt * params.gravity) / (1.0 + model.dt * params.drag)
@@ -323,7 +339,7 @@ def g2p(model: MPMModel, params: MPMParams, state: MPMState, grid_v) -> MPMState
     x = state.x + model.dt * v
     F = (dr.identity(t.Matrix3f) + model.dt * C) @ state.F
     if model.plastic:
-        mu, _ = lame(params.E * model.particle_E_scale, params.nu)
+        mu, _ = lame(*model.particle_E_nu(params))
         F = von_mises_return(F, mu, params.yield_stress)
     return MPMState(x, v, C, F)
 

@@ -44,3 +44,27 @@ def steps_bar(steps, desc: str, progress: bool, **kwargs):
     from tqdm import tqdm
 
     return tqdm(steps, desc=desc, leave=False, **kwargs)
+
+
+def all_view_loss(gaussians, centres: np.ndarray, targets: list, cameras: list, render_cfg, lam: float) -> float:
+    """Mean over fit frames 1 .. n_fit-1 and every view of (1-λ) L1 + λ D-SSIM of `gaussians` posed
+    at `centres` [n_fit, M, 3] against `targets` (per frame, per view TensorXf): the deterministic
+    loss a run reports before and after the fit (forward only). 0 when there is no frame after 0."""
+    import drjit as dr
+
+    from sgdr.arrays import points_to_array3, scalar
+    from sgdr.identify.common import posed
+
+    if len(centres) < 2:
+        return 0.0
+    views = list(range(len(cameras)))
+    with dr.suspend_grad():
+        losses = [
+            scalar(
+                multiview_image_loss(
+                    posed(gaussians, points_to_array3(centres[f])), targets[f], cameras, views, render_cfg, lam
+                )
+            )
+            for f in range(1, len(centres))
+        ]
+    return float(np.mean(losses))

@@ -33,7 +33,7 @@ def variants():
         ("deform4d", "twist", "default", d4),
         ("deform4d", "twist", "tv l1", replace(d4, tv="l1")),
         ("deform4d", "twist", "no regularisers", replace(d4, w_tv=0.0, w_time=0.0)),
-        ("deform4d", "twist", "init zero (same Adam steps)", replace(d4, init="zero", iterations=30 + 3 * 40 // 3)),
+        ("deform4d", "twist", "init zero (70 joint steps: as many renders)", replace(d4, init="zero", iterations=70)),
     ]
 
 

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from sgdr.arrays import array3_to_points, points_to_array3, to_numpy
+from sgdr.arrays import array3_to_points, points_to_array3, scalar
 from sgdr.backend import ad
 from sgdr.baselines.common import ReconstructionResult, multiview_image_loss, steps_bar, view_choice
 from sgdr.baselines.config import Deform4DConfig
@@ -240,8 +240,8 @@ def fit_deformation(
         return type(g)(means, g.log_scales, g.rotations, g.color_logits, g.opacity_logits)
 
     def record(loss, l_im, frame):
-        losses.append(float(to_numpy(loss).reshape(-1)[0]))
-        image_losses.append(float(to_numpy(l_im).reshape(-1)[0]))
+        losses.append(scalar(loss))
+        image_losses.append(scalar(l_im))
         step_frames.append(frame)
 
     # -- start: zero, or frame by frame (each grid alone, from the last)

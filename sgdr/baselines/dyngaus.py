@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from sgdr.arrays import array3_to_points, points_to_array3, to_numpy
+from sgdr.arrays import array3_to_points, points_to_array3, scalar, to_numpy
 from sgdr.backend import ad
 from sgdr.baselines.common import ReconstructionResult, multiview_image_loss, steps_bar, view_choice
 from sgdr.baselines.config import DynGausConfig
@@ -217,8 +217,8 @@ def track_gaussians(
             dr.eval(loss, l_im)
             dr.backward(loss)
             opt.step()
-            losses.append(float(to_numpy(loss).reshape(-1)[0]))
-            image_losses.append(float(to_numpy(l_im).reshape(-1)[0]))
+            losses.append(scalar(loss))
+            image_losses.append(scalar(l_im))
             step_frames.append(f)
 
         # -- the frame's result becomes the next frame's start

@@ -12,7 +12,7 @@ help:
 	@echo "make bench      run benchmarks, one JSON line each (BENCH=sim|render|... for one)"
 	@echo "make data       generate the 7-object benchmark at the small preset into data/"
 	@echo "make demo       generate + reconstruct + predict + evaluate the torus (small preset)"
-	@echo "make reproduce  the seven-object table (docs/reconstruction-results.md): every object at the small preset, then the table"
+	@echo "make reproduce  the paper's Tables 1-3 (docs/reproduce.md): every method on every object (Hydra multirun, 2 jobs), then results/tables.*"
 	@echo "make oracle     the spring-mass model fitted to the torus's ground-truth particle tracks (OBJECT=...)"
 	@echo "make posterior  emcee posterior of a finished run's physics (RUN=outputs/torus_small_s0, SEQUENCE= a twin)"
 	@echo "make diagnose   which model extension a finished run's data ask for (RUN=, SEQUENCE=)"
@@ -42,16 +42,20 @@ RUN_TAG = $(PRESET)$(if $(filter spring_gaus,$(METHOD)),,_$(METHOD))
 demo:
 	$(PYTHON) experiments/reconstruct.py preset=small method=$(METHOD) synth.object=torus
 
-# The seven-object table (docs/reconstruction-results.md): generate (or reuse) and reconstruct every object at the small
-# preset one after another (Hydra multirun, basic launcher: one process), then print the table.
-OBJECTS ?= torus cross cream apple paste chess banana
-comma := ,
-empty :=
-space := $(empty) $(empty)
+# The paper's Tables 1-3 (docs/reproduce.md): every (method, object) cell the tables need, generated and
+# reconstructed through Hydra multiruns (LAUNCHER=joblib with JOBS processes locally; submitit_local,
+# submitit_slurm or slurm on a cluster), finished cells skipped, a progress line per finished cell; then
+# results/tables.md, table{1,2,3}.csv, tables.json, tables.html (results/<preset>/ for another preset).
+# Methods not in this checkout stay "missing". METHODS=a,b / OBJECTS=a,b narrow the cells run; ARGS= more
+# options or overrides for every run (e.g. ARGS="--rerun" or ARGS="recon.iterations=10").
+LAUNCHER ?= joblib
+JOBS ?= 2
+METHODS ?=
+OBJECTS ?=
+ARGS ?=
 reproduce:
-	$(PYTHON) experiments/reconstruct.py -m preset=$(PRESET) method=$(METHOD) \
-		synth.object=$(subst $(space),$(comma),$(OBJECTS))
-	$(PYTHON) -m evaluation.table $(foreach o,$(OBJECTS),outputs/$(o)_$(RUN_TAG)_s0)
+	$(PYTHON) -m evaluation.reproduce --preset $(PRESET) --launcher $(LAUNCHER) --jobs $(JOBS) \
+		$(if $(METHODS),--methods $(METHODS),) $(if $(OBJECTS),--objects $(OBJECTS),) $(ARGS)
 
 # The identification upper bound: the model fitted to the generator's particle tracks instead of
 # images (docs/reconstruction-results.md). About 2.5 min for the small torus on the 2-core machine.

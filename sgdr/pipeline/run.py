@@ -527,6 +527,7 @@ def run_metrics(cfg, seq_root: Path, stages: dict[str, StageResult], t_sequence:
         "dynamic_loss_last_pass": passes[-1] if passes else None,
         "dynamic_eval_loss_initial": dyn["eval_loss_initial"],
         "dynamic_eval_loss_final": dyn["eval_loss_final"],
+        "method": cfg.method,
         "model": cfg.recon.model,
         "identified": MODELS.get_named(cfg.recon.model).identified(stages),
         "momentum": stages["predict"].value.momentum if "predict" in stages else None,

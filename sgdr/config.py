@@ -93,6 +93,8 @@ SECTION_CHECKS = {
     "realcap": realcap_config.CHECKS,
     "baseline": baseline_config.CHECKS,
     "baseline.pacnerf": baseline_config.PACNERF_CHECKS,
+    "baseline.dyngaus": baseline_config.DYNGAUS_CHECKS,
+    "baseline.deform4d": baseline_config.DEFORM4D_CHECKS,
 }
 
 

@@ -128,7 +128,7 @@ def test_tables_means_ratio_direction_and_missing_cells(tmp_path, conf):
     ]
     md = (tmp_path / "results" / "tables.md").read_text()
     assert "| future CD (x1e3) | Spring-Gaus (ours) | 1.00 (2.38) |" in md
-    assert "| fit CD (x1e3) | Dy-Gaus [26] | 1.00 (579.00) |" in md
+    assert "| fit CD (x1e3) | Dy-Gaus [26], simplified | 1.00 (579.00) |" in md
     assert "n/a [2] (5.70)" in md and "[2] diverged" in md  # Table 3: the null cell and its footnote
     assert "torus_hetero_tiny_s0 (old)" in md  # a run made on another commit is named
     rows = list(csv.DictReader(open(tmp_path / "results" / "table3.csv")))

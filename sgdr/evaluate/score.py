@@ -15,6 +15,11 @@ per-frame CDs in `per_frame["baseline_cd"][variant]` (None on the fit frames).
 
 The result is strict JSON: a score that cannot be computed is None, never NaN, and
 `missing[<key>]` says why (e.g. a sequence without ground-truth particles has no CD).
+
+A method that reconstructs the fit frames only (the Table 2 baselines `dyngaus`, `deform4d`)
+is scored with `fit_only` = the reason: its prediction holds the fit frames, the per-frame lists
+are None on the future frames, and every future score (the physics-free baseline's included, as
+it continues the reconstruction into frames the method does not claim) is None with that reason.
 """
 
 from __future__ import annotations
@@ -35,28 +40,30 @@ def _mean(xs) -> float | None:
     return float(np.mean(xs)) if xs else None
 
 
-def evaluate_prediction(prediction, seq, with_emd: bool = True, seed: int = 0, workers: int = 0) -> dict:
+def evaluate_prediction(
+    prediction, seq, with_emd: bool = True, seed: int = 0, workers: int = 0, fit_only: str = ""
+) -> dict:
     """All scores as a strict-JSON dict (means, per-frame lists, `missing` reasons).
 
     prediction: `Prediction` (centres [T, M, 3], images [T, V, H, W, 4] uint8 RGBA); seq: Sequence.
     workers: processes for the per-frame EMDs (`earth_movers_distances`; 0 = every CPU).
     The EMD is computed once per frame, for the prediction only (the baseline is scored by CD).
+    fit_only: "" scores every frame; else the reason why only the fit frames are scored (T >= n_fit).
     """
     T = prediction.centres.shape[0]
     n_fit = int(seq.n_fit)
-    if T < seq.n_frames:
-        raise ValueError(f"evaluate: prediction has {T} frames, the sequence {seq.n_frames}")
+    n_scored = n_fit if fit_only else seq.n_frames
+    if T < n_scored:
+        raise ValueError(f"evaluate: prediction has {T} frames, expected {n_scored}")
     per_frame: dict[str, list] = {"cd": [], "emd": [], "psnr": [], "ssim": []}
     missing: dict[str, str] = {}
     has_gt = seq.gt_particles(0) is not None
-    gts = [seq.gt_particles(f) for f in range(seq.n_frames)] if has_gt else [None] * seq.n_frames
+    gts = [seq.gt_particles(f) for f in range(n_scored)] if has_gt else [None] * n_scored
     if has_gt and with_emd:
-        per_frame["emd"] = earth_movers_distances(
-            zip(prediction.centres[: seq.n_frames], gts), seed=seed, workers=workers
-        )
+        per_frame["emd"] = earth_movers_distances(zip(prediction.centres[:n_scored], gts), seed=seed, workers=workers)
     else:
-        per_frame["emd"] = [None] * seq.n_frames
-    for f in range(seq.n_frames):
+        per_frame["emd"] = [None] * n_scored
+    for f in range(n_scored):
         gt = gts[f]
         per_frame["cd"].append(chamfer_distance(prediction.centres[f], gt, seed=seed) if gt is not None else None)
         if prediction.images.size:
@@ -74,6 +81,9 @@ def evaluate_prediction(prediction, seq, with_emd: bool = True, seed: int = 0, w
         "psnr": None if prediction.images.size else "the prediction has no rendered images",
     }
     why["ssim"] = why["psnr"]
+    for values in per_frame.values():  # None on the frames not scored (fit_only); an empty list stays empty
+        if values:
+            values.extend([None] * (seq.n_frames - len(values)))
     fit, fut = slice(0, n_fit), slice(n_fit, seq.n_frames)
     out: dict = {}
     for split, sl in (("fit", fit), ("future", fut)):
@@ -81,13 +91,15 @@ def evaluate_prediction(prediction, seq, with_emd: bool = True, seed: int = 0, w
             name = f"{split}_{key}"
             out[name] = _mean(per_frame[key][sl])
             if out[name] is None:
-                missing[name] = why[key] or (
-                    "the sequence has no future frames" if split == "future" and sl.start >= sl.stop else "not finite"
-                )
+                no_future = split == "future" and sl.start >= sl.stop
+                if split == "future" and fit_only and not no_future:
+                    missing[name] = fit_only
+                else:
+                    missing[name] = why[key] or ("the sequence has no future frames" if no_future else "not finite")
     # ---- the physics-free baseline on the future frames
     n_future = seq.n_frames - n_fit
     per_frame["baseline_cd"] = {name: [None] * seq.n_frames for name in BASELINES}
-    if has_gt and n_fit >= 2 and n_future > 0:
+    if has_gt and n_fit >= 2 and n_future > 0 and not fit_only:
         cands = physics_free_predictions(
             prediction.centres[n_fit - 2],
             prediction.centres[n_fit - 1],
@@ -107,6 +119,7 @@ def evaluate_prediction(prediction, seq, with_emd: bool = True, seed: int = 0, w
         out["baseline_variant"] = best
     else:
         reason = NO_GT if not has_gt else ("fewer than 2 fit frames" if n_fit < 2 else "no future frames")
+        reason = fit_only if fit_only and n_future > 0 else reason
         out["baseline_future_cd_by_variant"] = {name: None for name in BASELINES}
         out["baseline_future_cd"] = None
         out["baseline_variant"] = None

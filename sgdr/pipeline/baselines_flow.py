@@ -8,12 +8,24 @@ PAC-NeRF (`recon.model=pacnerf`, `method=pacnerf`):
   predict/   trajectory.npz (particles [T, P, 3] as `anchors`, Gaussian centres), images.npy
   report/    report.html: verdict, scores, videos, the search's loss landscape, the parameters
   asset/     pacnerf.json, particles.npy, gaussians.ply: the identified MPM object
+
+Table 2's other rows, SIMPLIFIED (`recon.model=dyngaus` | `deform4d`, `method=dyngaus` |
+`deform4d`; docs/baselines.md): dynamic reconstruction of the fit frames only, no physics, no future.
+  dynamics/  dynamics.json (losses, the all-view loss held still and fitted), centres.npz
+             (centres [n_fit, M, 3], every Adam step's loss and image loss, the frame it fitted)
+  predict/   trajectory.npz (centres [n_fit, M, 3]; anchors [n_fit, 0, 3]: no anchors), images.npy
+             (every view of every fit frame)
+  evaluate/  scores.json: the fit frames' scores; every future score null, "the method
+             reconstructs the fit frames only"
+  report/    report.html: verdict of the fit, scores, the fit frames' video, the losses
+  asset/     <model>.json, gaussians.ply (frame 0), centres.npy: the reconstruction (not simulatable)
 """
 
 from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -285,4 +297,244 @@ def pacnerf_asset_produce(ctx: RunContext, out: Path, ckpt) -> None:
 def pacnerf_asset_load(ctx: RunContext, out: Path) -> dict:
     d = json.loads((out / "pacnerf.json").read_text())
     d["gaussians"] = load_ply(out / "gaussians.ply")
+    return d
+
+
+# ---------------------------------------------------------------------- Table 2's other rows: dyngaus, deform4d
+FIT_ONLY = "the method reconstructs the fit frames only"
+
+
+@dataclass(frozen=True)
+class FitFrameModel:
+    title: str  # what it is, in a few words (the report's subtitle, the asset)
+    how: str  # what it does, in a sentence (the report)
+    fit: str  # "module:function" reconstructing the fit frames (`ReconstructionResult`)
+
+
+FIT_FRAME_MODELS = {
+    "dyngaus": FitFrameModel(
+        "simplified Dy-Gaus (per-frame tracking)",
+        "the centres (and a rotation per Gaussian) tracked frame by frame, each frame from the last plus its "
+        "velocity, under Dynamic 3D Gaussians' local-rigidity, rotation and isometry priors",
+        "sgdr.baselines.dyngaus:track_gaussians",
+    ),
+    "deform4d": FitFrameModel(
+        "simplified 4D-Gaus (deformation grids)",
+        "the centres moved by one displacement grid per fit frame over the object's box (trilinear), all grids "
+        "fitted jointly with smoothness penalties in space and time after a frame-by-frame start",
+        "sgdr.baselines.deform4d:fit_deformation",
+    ),
+}
+
+
+def _fit_targets(ctx: RunContext) -> list:
+    from sgdr.identify.common import frame_targets
+
+    return [frame_targets(ctx.seq, f) for f in range(ctx.seq.n_fit)]
+
+
+def fit_frames_produce(model: str, ctx: RunContext, out: Path, ckpt) -> None:
+    """dynamics of `model` (dyngaus | deform4d): its reconstruction of the fit frames."""
+    import importlib
+
+    from sgdr.baselines.common import all_view_loss
+
+    module, name = FIT_FRAME_MODELS[model].fit.split(":")
+    fit = getattr(importlib.import_module(module), name)
+    cfg = getattr(ctx.cfg.baseline, model)
+    targets = _fit_targets(ctx)
+    res = fit(ctx.gaussians, targets, ctx.cameras, ctx.cfg.render, cfg, ctx.cfg.seed, ctx.progress)
+    held = np.repeat(res.centres[:1], len(res.centres), axis=0)  # every fit frame at frame 0: nothing moved
+    lam = float(cfg.lambda_dssim)
+    np.savez(
+        out / "centres.npz",
+        centres=res.centres,
+        losses=res.losses,
+        image_losses=res.image_losses,
+        step_frames=np.asarray(res.step_frames, np.int64),
+    )
+    record = {
+        "model": model,
+        "n_gaussians": int(res.centres.shape[1]),
+        "n_fit": int(res.centres.shape[0]),
+        "pass_losses": _pass_losses(res),
+        "eval_loss_initial": all_view_loss(ctx.gaussians, held, targets, ctx.cameras, ctx.cfg.render, lam),
+        "eval_loss_final": all_view_loss(ctx.gaussians, res.centres, targets, ctx.cameras, ctx.cfg.render, lam),
+        "note": (
+            "pass_losses: the joint steps' losses (deform4d) or each tracked frame's last loss (dyngaus), image + "
+            "priors / regularisers (every step's: centres.npz); eval_loss_initial / final: the "
+            "all-view image loss of fit frames 1..n_fit-1 with every Gaussian held at frame 0 / as reconstructed"
+        ),
+    }
+    (out / "dynamics.json").write_text(json.dumps(record, indent=1, allow_nan=False))
+
+
+def _pass_losses(res) -> list[float]:
+    """A run's per-pass losses: every joint step's (step frame -1), or else each frame's last step's."""
+    frames = np.asarray(res.step_frames)
+    if (frames == -1).any():
+        return [float(x) for x in res.losses[frames == -1]]
+    return [float(res.losses[frames == f][-1]) for f in sorted(set(frames.tolist()))]
+
+
+def fit_frames_load(ctx: RunContext, out: Path) -> dict:
+    d = json.loads((out / "dynamics.json").read_text())
+    with np.load(out / "centres.npz", allow_pickle=False) as z:
+        d.update({k: z[k] for k in ("centres", "losses", "image_losses", "step_frames")})
+    m = ctx.gaussians.count
+    if d["centres"].shape != (ctx.seq.n_fit, m, 3) or not np.all(np.isfinite(d["centres"])):
+        raise ValueError(f"dynamics/centres.npz: centres {d['centres'].shape} are not finite [n_fit, {m}, 3]")
+    return d
+
+
+def fit_frames_identified(stages: dict) -> dict:
+    dyn = stages["dynamics"].value
+    return {"n_gaussians": dyn["n_gaussians"], "fit_frames": dyn["n_fit"], "physical_parameters": None}
+
+
+def fit_frames_predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
+    """Every view's render of the reconstructed fit frames (there is no future to predict)."""
+    import drjit as dr
+
+    from sgdr.arrays import points_to_array3
+    from sgdr.identify.common import posed, render_rgba_numpy
+
+    centres = ctx.values["dynamics"]["centres"]
+    images = []
+    with dr.suspend_grad():
+        for c in centres:
+            g = posed(ctx.gaussians, points_to_array3(c))
+            rgba = np.stack([render_rgba_numpy(g, cam, ctx.cfg.render) for cam in ctx.cameras])
+            images.append((rgba * 255.0 + 0.5).astype(np.uint8))
+    np.savez(out / "trajectory.npz", anchors=np.zeros((len(centres), 0, 3), np.float32), centres=centres)
+    np.save(out / "images.npy", np.stack(images))
+
+
+def fit_frames_predict_load(ctx: RunContext, out: Path):
+    from sgdr.pipeline.predict import Prediction
+
+    with np.load(out / "trajectory.npz", allow_pickle=False) as z:
+        a, c = z["anchors"], z["centres"]
+    imgs = np.load(out / "images.npy", allow_pickle=False)
+    n = ctx.seq.n_fit
+    if a.shape[0] != n or c.shape[0] != n or imgs.shape[:2] != (n, len(ctx.cameras)) or imgs.shape[-1] != 4:
+        raise ValueError("predict outputs do not cover every fit frame and view of the sequence")
+    return Prediction(a, c, imgs)
+
+
+def fit_frames_evaluate_produce(ctx: RunContext, out: Path, ckpt) -> None:
+    """The fit frames' scores; the future's are null with the reason `FIT_ONLY`."""
+    from sgdr.evaluate.score import evaluate_prediction, strict_json
+
+    r = ctx.cfg.recon
+    scores = evaluate_prediction(
+        ctx.values["predict"],
+        ctx.seq,
+        with_emd=r.eval_emd,
+        seed=ctx.cfg.seed,
+        workers=r.eval_workers,
+        fit_only=FIT_ONLY,
+    )
+    missing = scores.pop("missing")
+    scores = strict_json(scores, missing)
+    scores["missing"] = missing
+    (out / "scores.json").write_text(json.dumps(scores, indent=1, allow_nan=False))
+
+
+def fit_frames_report_produce(model: str, ctx: RunContext, out: Path, ckpt) -> None:
+    from sgdr.pipeline import report
+    from sgdr.pipeline.report_html import Section, image, paragraph, table, video, write_report
+    from sgdr.pipeline.verdict import FIT_PSNR_FAIR, FIT_PSNR_GOOD, Verdict
+
+    cfg, seq, dyn, scores = ctx.cfg, ctx.seq, ctx.values["dynamics"], ctx.values["evaluate"]
+    what = FIT_FRAME_MODELS[model]
+    sections = [_scores_section(out, scores, seq.n_fit)]
+    if cfg.recon.render_videos:
+        clip = report_frames(seq, ctx.values["predict"], seq.n_fit)
+        fps, repeat = report.playback(len(clip))
+        report.write_video(out / "fit.mp4", [f for f in clip for _ in range(repeat)], fps)
+        caption = f"the {seq.n_fit} fit frames, ground truth (left) | reconstruction (right) in every view"
+        sections.append(Section("Video", video(out / "fit.mp4", caption)))
+    frames = np.asarray(dyn["step_frames"])
+    curves = {"loss (image + priors)": dyn["losses"], "image loss": dyn["image_losses"]}
+    png = report.plot_losses(out / "losses.png", curves, {k: "Adam step" for k in curves})
+    steps = (
+        f"{int((frames == -1).sum())} joint steps over every fit frame, after {int((frames >= 0).sum())} steps of "
+        "the frame-by-frame start"
+        if (frames == -1).any()
+        else f"{len(frames)} steps, frame by frame (frames 1..{seq.n_fit - 1})"
+    )
+    sections.append(Section("Losses", image(png, "losses", f"Every Adam step's loss: {steps}.")))
+    section = plain_section(getattr(cfg.baseline, model))
+    rows = [(k, str(v)) for k, v in section.items()]
+    rows.append(
+        (
+            "all-view image loss, held at frame 0 / reconstructed",
+            f"{dyn['eval_loss_initial']:.4g} / {dyn['eval_loss_final']:.4g}",
+        )
+    )
+    sections.append(Section("Settings", table((f"baseline.{model}", "value"), rows)))
+    psnr = scores.get("fit_psnr")
+    if psnr is None:
+        quality = "unknown"
+        text = f"The fit cannot be judged: no image PSNR of the fit frames ({scores['missing'].get('fit_psnr')})."
+    else:
+        quality = "good" if psnr >= FIT_PSNR_GOOD else "fair" if psnr >= FIT_PSNR_FAIR else "poor"
+        text = (
+            f"The reconstruction of the fit frames is {quality}: its renders match the input images at {psnr:.1f} "
+            f"dB PSNR (good from {FIT_PSNR_GOOD:g} dB, fair from {FIT_PSNR_FAIR:g} dB)"
+        )
+        if scores.get("fit_cd") is not None:
+            text += (
+                f"; its centres are at Chamfer distance {scores['fit_cd']:.3g} (x1e3) from the ground-truth particles"
+            )
+        text += "."
+    future = f"The future is not scored: {FIT_ONLY} (no physics, nothing to simulate)."
+    verdict = Verdict(quality, "not scored", f"Fit {quality}; the future is not predicted.", [text, future], [])
+    sections.append(
+        Section(
+            "What this is",
+            paragraph(
+                f"The {what.title} baseline (docs/baselines.md, Table 2's other rows): the refined frame-0 Gaussians "
+                f"of the shared stages, appearance frozen; {what.how}. No physical parameter, no future."
+            ),
+        )
+    )
+    subtitle = (
+        f"The {what.title} baseline on {seq.root}: {len(seq.cameras)} views, frames 0..{seq.n_fit - 1} reconstructed. Preset "
+        f"{cfg.preset}, method {cfg.method}, seed {cfg.seed}."
+    )
+    write_report(out / "report.html", f"sgdr run {out.parent.name}", verdict, sections, subtitle)
+
+
+def plain_section(section) -> dict:
+    """A config section (dataclass or DictConfig) as a plain dict."""
+    import dataclasses
+
+    from omegaconf import OmegaConf
+
+    if dataclasses.is_dataclass(section):
+        return dataclasses.asdict(section)
+    return OmegaConf.to_container(section, resolve=True)
+
+
+def fit_frames_asset_produce(model: str, ctx: RunContext, out: Path, ckpt) -> None:
+    dyn = ctx.values["dynamics"]
+    save_ply(out / "gaussians.ply", ctx.gaussians)
+    np.save(out / "centres.npy", dyn["centres"].astype(np.float32))
+    record = {
+        "model": model,
+        "what": FIT_FRAME_MODELS[model].title,
+        "settings": plain_section(getattr(ctx.cfg.baseline, model)),
+        "n_fit": int(ctx.seq.n_fit),
+        "fps": ctx.seq.fps,
+        "note": f"{FIT_ONLY}: gaussians.ply is frame 0, centres.npy [n_fit, M, 3] every fit frame; not simulatable",
+    }
+    (out / f"{model}.json").write_text(json.dumps(record, indent=1))
+
+
+def fit_frames_asset_load(model: str, ctx: RunContext, out: Path) -> dict:
+    d = json.loads((out / f"{model}.json").read_text())
+    d["gaussians"] = load_ply(out / "gaussians.ply")
+    d["centres"] = np.load(out / "centres.npy", allow_pickle=False)
     return d

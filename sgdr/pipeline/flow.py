@@ -309,14 +309,15 @@ def evaluate_load(ctx: RunContext, out: Path) -> dict:
 
 
 # ---------------------------------------------------------------------- 8. report: report.html, videos, plots, PLYs
-def report_frames(seq, pred) -> list[np.ndarray]:
-    """Labelled video frames of every frame: [ground truth | prediction] per view, both over the
-    sequence's ground plane, with the frame number and the FIT / FUTURE marker."""
+def report_frames(seq, pred, n_frames: int | None = None) -> list[np.ndarray]:
+    """Labelled video frames of every frame (or of the first `n_frames`: a prediction of the fit
+    frames only): [ground truth | prediction] per view, both over the sequence's ground plane,
+    with the frame number and the FIT / FUTURE marker."""
     from sgdr.pipeline import report
 
     grounds = [report.ground_image(cam, seq.ground_point, seq.ground_normal) for cam in seq.cameras]
     frames = []
-    for f in range(seq.n_frames):
+    for f in range(seq.n_frames if n_frames is None else n_frames):
         gts, preds = [], []
         for v, ground in enumerate(grounds):
             gt, p = seq.image(v, f), pred.images[f, v]

@@ -170,7 +170,49 @@ def _baseline_models() -> dict:
             seeded=False,
         ),
     )
-    return {"pacnerf": Model(pacnerf, bf.pacnerf_identified)}
+    models = {"pacnerf": Model(pacnerf, bf.pacnerf_identified)}
+    for name in bf.FIT_FRAME_MODELS:  # Table 2's other rows: the fit frames only (simplified Dy-Gaus, 4D-Gaus)
+        section = f"baseline.{name}"
+        models[name] = Model(
+            shared
+            + (
+                Stage(
+                    "dynamics",
+                    (section, "render"),
+                    ("refine",),
+                    partial(bf.fit_frames_produce, name),
+                    bf.fit_frames_load,
+                ),
+                Stage(
+                    "predict",
+                    ("render",),
+                    ("dynamics", "refine"),
+                    bf.fit_frames_predict_produce,
+                    bf.fit_frames_predict_load,
+                    seeded=False,
+                    reads_sequence=False,
+                ),
+                Stage("evaluate", ("recon",), ("predict",), bf.fit_frames_evaluate_produce, flow.evaluate_load),
+                Stage(
+                    "report",
+                    ("recon", section),
+                    ("predict", "evaluate", "dynamics"),
+                    partial(bf.fit_frames_report_produce, name),
+                    bf.report_load,
+                    seeded=False,
+                ),
+                Stage(
+                    "asset",
+                    (section,),
+                    ("dynamics", "refine"),
+                    partial(bf.fit_frames_asset_produce, name),
+                    partial(bf.fit_frames_asset_load, name),
+                    seeded=False,
+                ),
+            ),
+            bf.fit_frames_identified,
+        )
+    return models
 
 
 # The dynamic models a method chooses with `recon.model` (conf/method/): spring_mass is Spring-Gaus

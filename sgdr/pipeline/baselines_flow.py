@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from sgdr.gaussians.ply import load_ply, save_ply
-from sgdr.pipeline.flow import RunContext, report_frames
+from sgdr.pipeline.flow import RunContext, report_frames, report_videos
 
 
 def _pacnerf_scene(ctx: RunContext, particles: np.ndarray, n_frames: int):
@@ -139,38 +139,24 @@ def pacnerf_predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
     np.save(out / "images.npy", np.stack(images))
 
 
-def pacnerf_predict_load(ctx: RunContext, out: Path):
+def load_prediction(out: Path, n_frames: int, n_views: int, what: str = "every frame"):
+    """The predict stage's trajectory.npz and images.npy as a `Prediction`, checked to cover
+    `n_frames` frames and `n_views` views (`what` names them in the error)."""
     from sgdr.pipeline.predict import Prediction
 
     with np.load(out / "trajectory.npz", allow_pickle=False) as z:
         a, c = z["anchors"], z["centres"]
     imgs = np.load(out / "images.npy", allow_pickle=False)
-    n = ctx.seq.n_frames
-    if a.shape[0] != n or c.shape[0] != n or imgs.shape[:2] != (n, len(ctx.cameras)) or imgs.shape[-1] != 4:
-        raise ValueError("predict outputs do not cover every frame and view of the sequence")
+    if a.shape[0] != n_frames or c.shape[0] != n_frames or imgs.shape[:2] != (n_frames, n_views) or imgs.shape[-1] != 4:
+        raise ValueError(f"predict outputs do not cover {what} and view of the sequence")
     return Prediction(a, c, imgs)
 
 
+def pacnerf_predict_load(ctx: RunContext, out: Path):
+    return load_prediction(out, ctx.seq.n_frames, len(ctx.cameras))
+
+
 # ---------------------------------------------------------------------- report
-def _videos(ctx: RunContext, out: Path) -> list:
-    from sgdr.pipeline import report
-
-    seq, pred = ctx.seq, ctx.values["predict"]
-    videos = []
-    if not ctx.cfg.recon.render_videos:
-        return videos
-    frames = report_frames(seq, pred)
-    for name, clip, what in (
-        ("side_by_side.mp4", frames, f"all {seq.n_frames} frames, fit then future"),
-        ("future.mp4", frames[seq.n_fit :], f"the {seq.n_frames - seq.n_fit} future frames"),
-    ):
-        if clip:
-            fps, repeat = report.playback(len(clip))
-            report.write_video(out / name, [f for f in clip for _ in range(repeat)], fps)
-            videos.append((out / name, f"{what}, ground truth (left) | prediction (right) in every view"))
-    return videos
-
-
 def _scores_section(out: Path, scores: dict, n_fit: int):
     from sgdr.pipeline import report
     from sgdr.pipeline.report_html import Section, image, paragraph, scores_table
@@ -211,7 +197,7 @@ def pacnerf_report_produce(ctx: RunContext, out: Path, ckpt) -> None:
     cfg, seq, dyn, scores = ctx.cfg, ctx.seq, ctx.values["dynamics"], ctx.values["evaluate"]
     pc = cfg.baseline.pacnerf
     sections = [_scores_section(out, scores, seq.n_fit)]
-    videos = _videos(ctx, out)
+    videos = report_videos(ctx, out)
     if videos:
         from sgdr.pipeline.report_html import video
 
@@ -411,15 +397,7 @@ def fit_frames_predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
 
 
 def fit_frames_predict_load(ctx: RunContext, out: Path):
-    from sgdr.pipeline.predict import Prediction
-
-    with np.load(out / "trajectory.npz", allow_pickle=False) as z:
-        a, c = z["anchors"], z["centres"]
-    imgs = np.load(out / "images.npy", allow_pickle=False)
-    n = ctx.seq.n_fit
-    if a.shape[0] != n or c.shape[0] != n or imgs.shape[:2] != (n, len(ctx.cameras)) or imgs.shape[-1] != 4:
-        raise ValueError("predict outputs do not cover every fit frame and view of the sequence")
-    return Prediction(a, c, imgs)
+    return load_prediction(out, ctx.seq.n_fit, len(ctx.cameras), "every fit frame")
 
 
 def fit_frames_evaluate_produce(ctx: RunContext, out: Path, ckpt) -> None:

@@ -327,28 +327,39 @@ def report_frames(seq, pred, n_frames: int | None = None) -> list[np.ndarray]:
     return frames
 
 
+def report_videos(ctx: RunContext, out: Path) -> list[tuple[Path, str]]:
+    """side_by_side.mp4 (every frame) and future.mp4 written into `out` unless
+    recon.render_videos is off; (file, caption) of each."""
+    from sgdr.pipeline import report
+
+    seq, pred = ctx.seq, ctx.values["predict"]
+    videos = []
+    if not ctx.cfg.recon.render_videos:
+        return videos
+    frames = report_frames(seq, pred)
+    for name, clip, what in (
+        ("side_by_side.mp4", frames, f"all {seq.n_frames} frames, fit then future"),
+        ("future.mp4", frames[seq.n_fit :], f"the {seq.n_frames - seq.n_fit} future frames"),
+    ):
+        if clip:
+            fps, repeat = report.playback(len(clip))
+            report.write_video(out / name, [f for f in clip for _ in range(repeat)], fps)
+            caption = (
+                f"{what}, ground truth (left) | prediction (right) in every view, over the ground plane; "
+                f"played at {fps / repeat:.3g} frames per second ({len(clip) * repeat / fps:.1f} s), the "
+                f"sequence runs at {seq.fps:g} fps"
+            )
+            videos.append((out / name, caption))
+    return videos
+
+
 def report_produce(ctx: RunContext, out: Path, ckpt) -> None:
     from sgdr.pipeline import report
     from sgdr.pipeline.report_html import Section, run_sections, table, write_report
     from sgdr.pipeline.verdict import judge
 
     cfg, seq, pred, dyn = ctx.cfg, ctx.seq, ctx.values["predict"], ctx.values["dynamics"]
-    videos = []
-    if cfg.recon.render_videos:
-        frames = report_frames(seq, pred)
-        for name, clip, what in (
-            ("side_by_side.mp4", frames, f"all {seq.n_frames} frames, fit then future"),
-            ("future.mp4", frames[seq.n_fit :], f"the {seq.n_frames - seq.n_fit} future frames"),
-        ):
-            if clip:
-                fps, repeat = report.playback(len(clip))
-                report.write_video(out / name, [f for f in clip for _ in range(repeat)], fps)
-                caption = (
-                    f"{what}, ground truth (left) | prediction (right) in every view, over the ground plane; "
-                    f"played at {fps / repeat:.3g} frames per second ({len(clip) * repeat / fps:.1f} s), the "
-                    f"sequence runs at {seq.fps:g} fps"
-                )
-                videos.append((out / name, caption))
+    videos = report_videos(ctx, out)
     scores = ctx.values["evaluate"]
     sections = run_sections(
         out,

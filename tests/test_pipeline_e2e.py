@@ -297,6 +297,7 @@ def test_ctrl_c_says_how_to_resume(tiny_run):
         "experiments/reconstruct.py",
         *overrides,
         "recon.run_name=interrupted",
+        "recon.share_stages=false",  # else every stage is copied from tiny_run's folder beside it: nothing to interrupt
         f"hydra.run.dir={cfg.recon.output_dir}/hydra",
     ]
     # SIGINT as a terminal delivers it (a background job may inherit it ignored)

@@ -299,14 +299,19 @@ def search(scene: Scene, skin: ParticleSkin, obs: Observation, cfg, render_cfg, 
     evaluated, round_best = [], []
     best = None
     rounds = range(int(cfg.rounds))
-    if progress:
+    bar = None
+    if progress:  # one step per round; within a round the postfix says where it is
         from tqdm import tqdm
 
-        rounds = tqdm(rounds, desc="PAC-NeRF E, ν search", leave=False)
+        rounds = bar = tqdm(rounds, desc="PAC-NeRF E, ν search", leave=False)
     for r in rounds:
         ge, gn = grid_axis(*box[0], int(cfg.grid_E)), grid_axis(*box[1], int(cfg.grid_nu))
         cand = np.array([(e, n) for e in ge for n in gn])
-        frames = rollout(scene, cfg, 10.0 ** cand[:, 0], cand[:, 1], n_frames)
+        label = f"{len(cand)} candidates, frame"
+        step = (lambda f, label=label: bar.set_postfix_str(f"{label} {f}/{n_frames - 1}")) if bar else None
+        frames = rollout(scene, cfg, 10.0 ** cand[:, 0], cand[:, 1], n_frames, step)
+        if bar:
+            bar.set_postfix_str(f"rendering {len(cand)} candidates" + (f", best {best['loss']:.4g}" if best else ""))
         for (lE, nu), pos in zip(cand, frames):
             loss = image_discrepancy(skin, obs, pos, render_cfg)
             if not math.isfinite(loss):

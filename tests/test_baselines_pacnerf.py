@@ -84,6 +84,14 @@ def test_search_box_halves_the_step_and_stays_in_bounds():
     edge = pn.next_box(box, 3.0, 5, box)  # at the low bound: same width, inside the bounds
     assert edge == pytest.approx([3.0, 4.0])
     assert pn.next_box([0.1, 0.4], 0.2, 1, [0.0, 0.5]) == [0.1, 0.4]  # one value: unchanged
+    # an inner best whose interval is exactly two half-widths wide in floats stays around the best
+    # (a rounding of hi - lo once sent it to the upper bound: [4.875, 5.5] for a best at 4.042)
+    b = 3.0 + 2.5 / 3 - 0.625 + 1.25 / 3 * np.arange(4)  # round 2's grid of a 4-point search from [3, 5.5]
+    nxt = pn.next_box([b[0], b[-1]], b[2], 4, [3.0, 5.5])
+    assert nxt == pytest.approx([b[2] - 0.3125, b[2] + 0.3125])
+    for best in np.linspace(3.0, 5.5, 41):
+        lo, hi = pn.next_box([3.0, 5.5], best, 4, [3.0, 5.5])
+        assert 3.0 <= lo <= best <= hi <= 5.5 and hi - lo == pytest.approx(1.25)
 
 
 def test_method_composes_and_bad_values_name_their_key():

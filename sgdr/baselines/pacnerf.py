@@ -282,10 +282,12 @@ def next_box(box, best: float, n: int, bounds) -> list:
         return list(box)
     step = (box[1] - box[0]) / (n - 1)
     half = 0.25 * (n - 1) * step
-    lo, hi = max(bounds[0], best - half), min(bounds[1], best + half)
-    if hi - lo < 2 * half:  # at a bound: keep the width, inside the bounds
-        lo, hi = (bounds[0], bounds[0] + 2 * half) if lo == bounds[0] else (bounds[1] - 2 * half, bounds[1])
-    return [lo, hi]
+    lo, hi = best - half, best + half
+    if lo < bounds[0]:  # at a bound: keep the width, inside the bounds
+        lo, hi = bounds[0], bounds[0] + 2 * half
+    elif hi > bounds[1]:
+        lo, hi = bounds[1] - 2 * half, bounds[1]
+    return [max(lo, bounds[0]), min(hi, bounds[1])]
 
 
 def search(scene: Scene, skin: ParticleSkin, obs: Observation, cfg, render_cfg, progress: bool = False):

@@ -37,6 +37,7 @@ EMD is in scene units. The columns are comparable in direction, not in value.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import datetime as _dt
 import json
@@ -606,13 +607,11 @@ def git_commit(root: Path = ROOT) -> tuple[str, bool | None]:
 
 def machine() -> dict:
     cpu = platform.processor() or platform.machine()
-    try:
+    with contextlib.suppress(OSError):  # no /proc/cpuinfo (not Linux): the platform's name stays
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):
                 cpu = line.split(":", 1)[1].strip()
                 break
-    except OSError:
-        pass
     return {"host": platform.node(), "cpu": cpu, "cores": os.cpu_count(), "system": platform.platform()}
 
 

@@ -17,6 +17,16 @@ class ReconstructionResult:
     step_frames: list = field(default_factory=list)  # per step: the frame it fitted (-1: all fit frames jointly)
 
 
+def check_targets(targets: list, cameras: list, error: type[Exception], name: str, empty: str = "no fit frame") -> None:
+    """Raise `error` (prefixed with the method's `name`) unless there is a fit frame and every
+    frame has one target image per camera."""
+    if not targets:
+        raise error(f"{name}: {empty}")
+    for f, views in enumerate(targets):
+        if len(views) != len(cameras):
+            raise error(f"{name}: frame {f} has {len(views)} target views, expected {len(cameras)} (cameras)")
+
+
 def view_choice(rng: np.random.Generator, n_views: int, views_per_step: int) -> list[int]:
     """The views one Adam step renders: every view (views_per_step 0, or >= n_views), else a
     random subset of that size, in increasing order."""

@@ -48,7 +48,13 @@ import numpy as np
 
 from sgdr.arrays import array3_to_points, points_to_array3, scalar
 from sgdr.backend import ad
-from sgdr.baselines.common import ReconstructionResult, multiview_image_loss, steps_bar, view_choice
+from sgdr.baselines.common import (
+    ReconstructionResult,
+    check_targets,
+    multiview_image_loss,
+    steps_bar,
+    view_choice,
+)
 from sgdr.baselines.config import Deform4DConfig
 from sgdr.identify.adam import make_adam
 from sgdr.registry import Registry
@@ -217,11 +223,7 @@ def fit_deformation(
     f = 0 .. n_fit-1, the images of every view (TensorXf [H, W, 3] each; frame 0's are not used).
     Returns centres [n_fit, M, 3] (frame 0: `gaussians.means`) and the losses of every Adam step.
     """
-    if not targets:
-        raise Deform4DError("deform4d: no fit frame")
-    for f, views in enumerate(targets):
-        if len(views) != len(cameras):
-            raise Deform4DError(f"deform4d: frame {f} has {len(views)} target views, expected {len(cameras)} (cameras)")
+    check_targets(targets, cameras, Deform4DError, "deform4d")
     t = ad()
     g = gaussians.detach()
     mu0_np = array3_to_points(g.means)  # [M, 3]

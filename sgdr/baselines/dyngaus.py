@@ -42,7 +42,13 @@ import numpy as np
 
 from sgdr.arrays import array3_to_points, points_to_array3, scalar, to_numpy
 from sgdr.backend import ad
-from sgdr.baselines.common import ReconstructionResult, multiview_image_loss, steps_bar, view_choice
+from sgdr.baselines.common import (
+    ReconstructionResult,
+    check_targets,
+    multiview_image_loss,
+    steps_bar,
+    view_choice,
+)
 from sgdr.baselines.config import DynGausConfig
 from sgdr.identify.adam import make_adam
 
@@ -172,11 +178,7 @@ def track_gaussians(
     images of every view (TensorXf [H, W, 3] each; frame 0's are not used). cameras: one per view.
     Returns centres [n_fit, M, 3] (frame 0: `gaussians.means`) and the losses of every Adam step.
     """
-    if not targets:
-        raise DynGausError("dyngaus: no fit frame to track")
-    for f, views in enumerate(targets):
-        if len(views) != len(cameras):
-            raise DynGausError(f"dyngaus: frame {f} has {len(views)} target views, expected {len(cameras)} (cameras)")
+    check_targets(targets, cameras, DynGausError, "dyngaus", "no fit frame to track")
     g = gaussians.detach()
     m = g.count
     mu0 = array3_to_points(g.means)  # [M, 3]

@@ -249,6 +249,11 @@ def test_tiny_posterior_on_a_twin(tiny):
     assert pred["frames"] == 12 and len(pred["com_height"]["q05"]) == 12
     assert len(pred["truth_com_height"]) == 12 and len(pred["median_cd_per_frame"]) == 12
     assert all(np.isfinite(pred["median_cd_per_frame"]))
+    # the point estimate and the physics-free "still" prediction, scored the same way
+    assert len(pred["map_cd_per_frame"]) == 12 and len(pred["still_cd_per_future_frame"]) == 12 - 8
+    assert pred["map_cd_per_frame"][0] == pytest.approx(pred["median_cd_per_frame"][0], rel=1e-6)  # the rest state
+    assert pred["median_future_cd"] < pred["still_future_cd"], (pred["median_future_cd"], pred["still_future_cd"])
+    assert 0.0 <= pred["com_height_disp_truth_inside_future"] <= 1.0
     with np.load(out / "samples.npz") as z:
         assert z["chains"].shape == (4, 24, 6, 2) and z["kept"].shape[1] == 2
     for name in ("corner.png", "traces.png", "predictive.png", "ensemble.mp4"):

@@ -177,6 +177,42 @@ CANDIDATES["heterogeneous_stiffness"] = Candidate(
 )
 
 
+def _shift_stiffness(ctx: Context, x: dict, _variant):
+    return {}, {"log10_k": np.asarray(ctx.values["log10_k"], float) + float(x["log10_k_shift"])}
+
+
+def _replace_value(name: str):
+    def apply(ctx: Context, x: dict, _variant):
+        return {}, {name: float(x["value"])}
+
+    return apply
+
+
+def _restitution(ctx: Context, x: dict, _variant):
+    if ctx.physics.contact != "coulomb":  # only the coulomb law reads e
+        return {}, {}
+    return {}, {"restitution": float(x["value"])}
+
+
+# Refits of the base model's own parameters (cause "none"): what flexibility inside the base model
+# class buys. `diagnose.rebase` fits them before the candidates, so that a candidate's gain is
+# measured over a base that is as good as its own parameters allow on the measure: a base fit
+# that is merely off (e.g. a stiffness the pipeline's loss placed elsewhere) would otherwise let
+# every free extension buy a large gain (docs/discrepancy.md, the MPM nulls).
+CONTROLS = Registry("base refit", "diagnose.rebase", ValueError)
+CONTROLS["stiffness"] = Candidate(
+    "none",
+    (Param("log10_k_shift", -1.0, 1.0),),
+    _shift_stiffness,
+    "a global shift of the identified log10 k field (decades)",
+)
+# (one value each, searched over its whole box: the search start `null` is not used)
+CONTROLS["friction"] = Candidate(
+    "none", (Param("value", 0.0, 1.0),), _replace_value("friction"), "the ground friction μ"
+)
+CONTROLS["restitution"] = Candidate("none", (Param("value", 0.0, 1.0),), _restitution, "e of the coulomb contact")
+
+
 @dataclass
 class Fit:
     values: dict  # {param: fitted value}
@@ -198,6 +234,8 @@ class Evaluator:
         from sgdr.physics import Ground
 
         self.asset, self.rollout = asset, rollout
+        self.values = dict(asset.values)  # the base's values and physics settings (`rebase` replaces them)
+        self.settings: dict = {}
         self.obs_fit, self.obs_held, self.obs_future = obs_fit, obs_held, obs_future
         self.score = score
         self.model, _ = asset.build()
@@ -218,10 +256,10 @@ class Evaluator:
         values = values or {}
         key = self._key(settings, values)
         if key not in self.cache:
-            cfg = replace(self.asset.physics, **settings)
+            cfg = replace(self.asset.physics, **{**self.settings, **settings})
             pos, stable = self.rollout(
                 self.model,
-                {**self.asset.values, **values},
+                {**self.values, **values},
                 {"log10_k_shift": np.zeros(1)},
                 self.ground,
                 self.n_frames,
@@ -231,6 +269,20 @@ class Evaluator:
             )
             self.cache[key] = pos[0] if stable[0] else None
         return self.cache[key]
+
+    def rebase(self, values: dict, settings: dict | None = None) -> None:
+        """Replace base values and physics settings (what every later rollout starts from); the
+        cached rollouts, keyed by what differs from the base, no longer hold."""
+        self.values = {**self.values, **values}
+        self.settings = {**self.settings, **(settings or {})}
+        self.cache.clear()
+        self.scores.clear()
+
+    def reset(self, values: dict, settings: dict) -> None:
+        """Back to a saved base (`values`, `settings`)."""
+        self.values, self.settings = dict(values), dict(settings)
+        self.cache.clear()
+        self.scores.clear()
 
     def per_view_frame(self, settings: dict, obs, values: dict | None = None) -> np.ndarray | None:
         """D [V, F] of one rollout, None when it is unstable (cached per rollout and observation:

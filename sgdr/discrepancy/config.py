@@ -23,6 +23,9 @@ class DiagnoseConfig:
             "heterogeneous_stiffness",
         ]
     )  # CANDIDATES names
+    # the base model's own parameters refitted on the measure before the candidates (CONTROLS names;
+    # [] = judge candidates against the run's fit as it is): flexibility inside the base's class
+    rebase: list = field(default_factory=lambda: ["stiffness", "friction", "restitution"])
     discrepancy: str = (
         "render"  # how a rollout is measured against the images: render | points (sgdr.discrepancy.measures)
     )
@@ -45,6 +48,7 @@ CHECKS = {
     "sequence": any_text("empty: the run's own sequence"),
     "out_dir": any_text("empty: <run>/diagnose"),
     "candidates": list_of(choice("sgdr.discrepancy.candidates:CANDIDATES"), min_len=1),
+    "rebase": list_of(choice("sgdr.discrepancy.candidates:CONTROLS")),
     "discrepancy": choice("sgdr.discrepancy.measures:MEASURES"),
     "max_image_size": at_least(8),
     "n_points": at_least(8),

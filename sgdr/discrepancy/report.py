@@ -142,6 +142,18 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
     ]  # fmt: skip
     body.append(table(["candidate", "changes", "fitted values", "held-out gain", "future gain", "decision"], rows))
     base, unit = diagnosis["base"], diagnosis["discrepancy"]["unit"]
+    rebase = diagnosis.get("rebase")
+    if rebase:
+        fitted = "; ".join(
+            f"{n} " + ", ".join(f"{_g(v)}" for v in st["values"].values()) + ("" if st["kept"] else " (not kept)")
+            for n, st in rebase["steps"].items()
+        )
+        body.append(paragraph(
+            f"The base is the asset's fit with its own parameters refitted on the fitting views ({fitted}): "
+            f"held-out gain {_g(rebase['held_out_gain'])} and future gain {_g(rebase['future_gain'])} over the asset's "
+            "fit. Each candidate is fitted from the asset's fit, these parameters are refitted with it in place, and "
+            "its gains are over this base: what a candidate adds beyond a better fit of the base model."
+        ))  # fmt: skip
     body.append(paragraph(
         f"Observed: {diagnosis['sequence']}. Measure: {diagnosis['discrepancy']['measure']} ({unit}). Base D, summed "
         f"over the view-frames: fitting views {_g(base['d_fit'])}, held-out views {_g(base['d_held_out'])}, future "

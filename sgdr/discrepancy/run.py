@@ -27,6 +27,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -101,11 +102,31 @@ def run_diagnosis(cfg) -> dict:
         size=size,
         free_fall_times=np.arange(1, max(int(seq.hit_frame), 1)) / float(asset.fps) if own else np.zeros(0),
     )
+    margin = float(dc.floor_margin)
+    asset_fit = dict(base)  # the asset's own fit, before any refit
+    rebase = refit_controls(ev, ctx, dc, dc.evaluations) if dc.rebase else None
+    if rebase is not None:
+        rebase["held_out_gain"] = excess_gain(rebase["d_held_out"], base["d_held_out"], floor["held_out"], margin)
+        rebase["future_gain"] = (
+            excess_gain(rebase["d_future"], base["d_future"], floor["future"], margin)
+            if rebase["d_future"] is not None
+            else None
+        )
+        base = {**base, **{k: rebase[k] for k in ("d_fit", "d_held_out", "d_future")}}
+        log.info(
+            "diagnose: base refit %s, held-out gain %.3f over the asset's fit",
+            {n: st["values"] for n, st in rebase["steps"].items()}, rebase["held_out_gain"],
+        )  # fmt: skip
     candidates = {}
     for name in dc.candidates:
         cand = CANDIDATES.get_named(name, "diagnose.candidates")
         fit = fit_candidate(ev, cand, ctx, dc.evaluations)
-        margin = float(dc.floor_margin)
+        d_alone = fit.d_held_out
+        joint = None
+        if rebase is not None:  # the base's own parameters refitted with the candidate in place
+            settings, repl = cand.apply(ctx, fit.values, fit.variant)
+            joint = refit_controls(ev, ctx, dc, max(4, int(dc.evaluations) // 2), settings, repl)
+            fit = replace(fit, d_fit=joint["d_fit"], d_held_out=joint["d_held_out"], d_future=joint["d_future"])
         gain = excess_gain(fit.d_held_out, base["d_held_out"], floor["held_out"], margin)
         future_gain = (
             excess_gain(fit.d_future, base["d_future"], floor["future"], margin) if fit.d_future is not None else None
@@ -127,6 +148,8 @@ def run_diagnosis(cfg) -> dict:
             "future_loss": fit.d_future,
             "future_gain": future_gain,
             "evaluations": len(fit.evaluated),
+            "gain_over_asset_fit": excess_gain(d_alone, asset_fit["d_held_out"], floor["held_out"], margin),
+            "controls": None if joint is None else {n: st["values"] for n, st in joint["steps"].items()},
         }
         log.info("diagnose: %s = %s, held-out gain %.3f", name, fit.values, gain)
     best = max(candidates, key=lambda n: candidates[n]["gain"]) if candidates else None
@@ -137,6 +160,8 @@ def run_diagnosis(cfg) -> dict:
         "cause": candidates[best]["cause"] if named else "none",
         "candidates": candidates,
         "base": base,
+        "asset_fit": asset_fit,
+        "rebase": rebase,
         "min_gain": float(dc.min_gain),
         "discrepancy": {"measure": dc.discrepancy, "unit": measure.unit},
         "v0_refit": bool(own),
@@ -170,6 +195,37 @@ def run_diagnosis(cfg) -> dict:
     else:
         log.info("diagnose: %s missing, no report section added", report)
     return record
+
+
+def refit_controls(ev, ctx, dc, evaluations: int, settings: dict | None = None, values: dict | None = None) -> dict:
+    """The base model's own parameters (`diagnose.rebase`, `sgdr.discrepancy.candidates.CONTROLS`)
+    refitted on the fitting views, one after another, each kept when it lowers the fitting D, on
+    top of a candidate's physics `settings` and value replacements `values` (none: the asset's
+    fit alone, the diagnosis's reference). `ev` and `ctx` are left as they were. Returns per
+    control its fitted value and losses, and the losses (d_fit, d_held_out, d_future) at the end."""
+    from sgdr.discrepancy.candidates import CONTROLS, fit_candidate
+
+    saved = (dict(ev.values), dict(ev.settings), ctx.values)
+    ev.rebase(values or {}, settings or {})
+    ctx.values = {**ctx.values, **(values or {})}
+    steps, d_fit = {}, ev.d({}, ev.obs_fit)
+    try:
+        for name in dc.rebase:
+            cand = CONTROLS.get_named(name, "diagnose.rebase")
+            fit = fit_candidate(ev, cand, ctx, evaluations)
+            _, repl = cand.apply(ctx, fit.values, fit.variant)
+            use = bool(repl) and fit.d_fit < d_fit
+            steps[name] = {"values": fit.values, "fit_loss": fit.d_fit, "held_out_loss": fit.d_held_out, "kept": use}
+            if use:
+                ev.rebase(repl)
+                ctx.values = {**ctx.values, **repl}
+                d_fit = fit.d_fit
+        out = {"steps": steps, "d_fit": ev.d({}, ev.obs_fit), "d_held_out": ev.d({}, ev.obs_held)}
+        out["d_future"] = ev.d({}, ev.obs_future) if ev.obs_future is not None else None
+    finally:
+        ev.reset(saved[0], saved[1])
+        ctx.values = saved[2]
+    return out
 
 
 def write_residuals(ev, parts, seq, asset, dc, out: Path, unit: str) -> tuple[dict, dict]:

@@ -21,17 +21,33 @@ def heights(centres: np.ndarray, ground_point, ground_normal) -> tuple[np.ndarra
     return h.mean(axis=-1), h.min(axis=-1)
 
 
-def predictive(rollout_all, centre_map, problem, samples: np.ndarray, median: np.ndarray, n_draws: int, seq, seed=0):
+def predictive(
+    rollout_all, centre_map, problem, samples: np.ndarray, median: np.ndarray, n_draws: int, seq, seed=0, map_theta=None
+):
     """Bands and truth over every frame. rollout_all(samples) -> (positions [S, T, N_A, 3], stable);
-    samples [N, D] the kept posterior samples; median [D]. Returns (a JSON-ready dict, centres
-    [S, T, P, 3] of the median (index 0) and the draws, stable [S])."""
+    samples [N, D] the kept posterior samples; median [D]; map_theta [D] the identified values (the
+    point estimate), rolled out beside the median when given. Returns (a JSON-ready dict, centres
+    [S, T, P, 3] of the median (index 0) and the draws, stable [S]).
+
+    With ground truth (`gt/` particles) the dict also holds the per-frame Chamfer distance (x1e3,
+    as the run's scores) of the posterior median, of the point estimate and of the physics-free
+    "still" prediction (the last fit frame's centres of the point estimate held where they are, as
+    the run's baseline `sgdr.evaluate.baselines`), their means over the future frames, and the share of
+    frames whose true centre-of-mass height lies in the 5-95% band, both as heights and as
+    displacements from frame 0 (`*_disp_*`: the truth's particles are not the Gaussian centres,
+    so their heights differ by a representation offset at rest, where every draw agrees)."""
     from sgdr.evaluate.geometry import chamfer_distance
 
     rng = np.random.default_rng(seed)
     pick = rng.choice(samples.shape[0], size=min(int(n_draws), samples.shape[0]), replace=False)
-    thetas = np.concatenate([median[None], samples[pick]])
+    extra = [] if map_theta is None else [np.asarray(map_theta, float)]
+    thetas = np.concatenate([median[None], *(e[None] for e in extra), samples[pick]])
     positions, stable = rollout_all(problem.samples(thetas))
     centres = centre_map(positions)  # [S, T, P, 3]
+    map_centres, map_ok = (centres[1], bool(stable[1])) if extra else (None, False)
+    if extra:  # the point estimate is not a draw
+        keep = np.r_[0, 2 : centres.shape[0]]
+        centres, stable = centres[keep], np.asarray(stable)[keep]
     com, low = heights(centres, seq.ground_point, seq.ground_normal)
     ok = np.asarray(stable, bool)
     draws = ok.copy()
@@ -48,7 +64,7 @@ def predictive(rollout_all, centre_map, problem, samples: np.ndarray, median: np
             q05, q50, q95 = np.percentile(curve[draws], [5, 50, 95], axis=0)
             out[name] = {"q05": q05.tolist(), "q50": q50.tolist(), "q95": q95.tolist()}
         out[name + "_median_prediction"] = curve[0].tolist() if ok[0] else None
-    truth_com, truth_low, cd = [], [], []
+    truth_com, truth_low, cd, map_cd, still_cd = [], [], [], [], []
     if seq.gt_dir is not None and ok[0]:
         for f in range(centres.shape[1]):
             gt = seq.gt_particles(f) if f < seq.n_frames else None
@@ -58,9 +74,20 @@ def predictive(rollout_all, centre_map, problem, samples: np.ndarray, median: np
             truth_com.append(float(c[0]))
             truth_low.append(float(lo[0]))
             cd.append(chamfer_distance(centres[0, f], gt))
+            if f >= seq.n_fit:  # the run's physics-free "still": the last fit frame's centres held
+                still_cd.append(chamfer_distance((map_centres if map_ok else centres[0])[seq.n_fit - 1], gt))
+            if map_ok:
+                map_cd.append(chamfer_distance(map_centres[f], gt))
     out["truth_com_height"] = truth_com or None
     out["truth_lowest_height"] = truth_low or None
     out["median_cd_per_frame"] = cd or None  # x1e3 scene units², as the run's scores
+    out["map_cd_per_frame"] = map_cd or None
+    out["still_cd_per_future_frame"] = still_cd or None  # frames n_fit, n_fit + 1, ...
+    future = slice(int(seq.n_fit), None)
+    for name, curve in (("median", cd), ("map", map_cd)):
+        out[f"{name}_future_cd"] = float(np.mean(curve[future])) if len(curve) > seq.n_fit else None
+    out["still_future_cd"] = float(np.mean(still_cd)) if still_cd else None
+    curve_at_rest = {"com_height": float(com[0, 0]), "lowest_height": float(low[0, 0])}  # frame 0: every draw's
     for name in ("com_height", "lowest_height"):
         truth = out[f"truth_{name}"]
         if truth is not None and name in out:
@@ -70,6 +97,16 @@ def predictive(rollout_all, centre_map, problem, samples: np.ndarray, median: np
             )
             out[f"{name}_truth_inside_fit"] = float(inside[: seq.n_fit].mean())
             out[f"{name}_truth_inside_future"] = float(inside[seq.n_fit :].mean()) if t.size > seq.n_fit else None
+            # displacements from frame 0: the band and the truth each relative to their own rest state
+            d = t - t[0]
+            base = curve_at_rest[name]
+            lo_d = np.asarray(out[name]["q05"][: t.size]) - base
+            hi_d = np.asarray(out[name]["q95"][: t.size]) - base
+            inside_d = (d >= lo_d - 1e-9) & (d <= hi_d + 1e-9)
+            out[f"{name}_disp_truth_inside_fit"] = float(inside_d[1 : seq.n_fit].mean()) if seq.n_fit > 1 else None
+            out[f"{name}_disp_truth_inside_future"] = (
+                float(inside_d[seq.n_fit :].mean()) if t.size > seq.n_fit else None
+            )
     return out, centres, ok
 
 
@@ -165,11 +202,20 @@ def plot_bands(pred: dict, fps: float, path):
     titles = {
         "com_height": "centre of mass height",
         "lowest_height": "lowest point height",
-        "cd": "CD x1e3 of the posterior-median prediction",
+        "cd": "CD x1e3 against the true particles",
     }
     for ax, name in zip(axes[0], panels):
         if name == "cd":
-            ax.plot(t[: len(pred["median_cd_per_frame"])], pred["median_cd_per_frame"], "o-", color="#3c78d8")
+            for key, label, style in (
+                ("median_cd_per_frame", "posterior median", dict(color="#3c78d8", marker="o")),
+                ("map_cd_per_frame", "point estimate", dict(color="#e69138", marker=".")),
+                ("still_cd_per_future_frame", "held still", dict(color="0.5", ls="--")),
+            ):
+                if pred.get(key):
+                    start = pred["n_fit"] if key.startswith("still") else 0
+                    ax.plot(t[start : start + len(pred[key])], pred[key], label=label, **style)
+            ax.set_yscale("log")
+            ax.legend(fontsize=7)
         else:
             if name in pred:
                 ax.fill_between(t, pred[name]["q05"], pred[name]["q95"], color="#3c78d8", alpha=0.3, label="5-95%")
@@ -277,6 +323,17 @@ def section(record: dict, out_dir):
             f"frames, {100 * pred['com_height_truth_inside_future']:.0f}% of future frames; lowest point "
             f"{100 * pred['lowest_height_truth_inside_fit']:.0f}% / {100 * pred['lowest_height_truth_inside_future']:.0f}%."
         )
+    if pred.get("com_height_disp_truth_inside_future") is not None:
+        cap += (
+            " As displacements from frame 0 (the particles' rest offset from the Gaussian centres removed): centre of "
+            f"mass {100 * pred['com_height_disp_truth_inside_fit']:.0f}% of fit frames after frame 0, "
+            f"{100 * pred['com_height_disp_truth_inside_future']:.0f}% of future frames."
+        )
+    if pred.get("median_future_cd") is not None:
+        cap += f" Future CD (x1e3, Gaussian centres against the true particles): posterior median {pred['median_future_cd']:.3g}"
+        if pred.get("map_future_cd") is not None:
+            cap += f", point estimate {pred['map_future_cd']:.3g}"
+        cap += f", the last fit frame held still {pred['still_future_cd']:.3g}."
     body.append(image(out_dir / "predictive.png", "posterior predictive bands", cap))
     if (out_dir / "ensemble.mp4").exists():
         body.append(

@@ -130,7 +130,15 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     kept = kept_samples(chains, diag)
     median = np.array([diag["median"][n] for n in problem.names])
     pred, pred_centres, pred_stable = pp.predictive(
-        rollout_all, CentreMap(asset, 0), problem, kept, median, pc.n_predictive, seq, seed=cfg.seed
+        rollout_all,
+        CentreMap(asset, 0),
+        problem,
+        kept,
+        median,
+        pc.n_predictive,
+        seq,
+        seed=cfg.seed,
+        map_theta=problem.map_theta,
     )
     gt = seq.gt_params() or {}
     truth = {k: float(v) for k, v in (gt.get("truth") or {}).items() if k in problem.names} if gt.get("twin") else {}

@@ -1,0 +1,197 @@
+"""The posterior on the seven MPM benchmark objects: predictive coverage and future CD (issue 14, §5).
+
+    python -m evaluation.posterior_objects                       # the preset's runs outputs/<object>_small_s0
+    python -m evaluation.posterior_objects --objects torus,cream --set posterior.n_steps=80
+    python -m evaluation.posterior_objects --summary             # the table, from the results file
+
+For each object's finished reconstruction (`outputs/<object>_<preset>_s0`, as `make reproduce` or
+`make demo` leaves it) `experiments/posterior.py` computes the posterior of the run's physics on
+the run's own MPM sequence, and one JSON line per object is appended to
+`results/posterior_objects_<preset>.jsonl` (committed): whether it converged, the intervals, the
+share of future frames whose true centre-of-mass height lies in the 5-95% predictive band (as a
+height, and as a displacement from frame 0), and the future Chamfer distance of the posterior
+median, of the point estimate and of the last fit frame held still (the run's physics-free
+baseline), all three scored the same way (the Gaussian centres against the true particles, x1e3). A rerun skips objects already in the
+file (`--rerun` runs them again; later lines supersede earlier ones). The data are generated
+by the MPM, not by the spring-mass model: the truth is outside the model class, so these numbers
+measure how the posterior behaves under misspecification, not its calibration (twins do that:
+evaluation/calibrate_posterior.py).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+OBJECTS = ("torus", "cross", "cream", "apple", "paste", "chess", "banana")
+
+
+def read_results(path: Path) -> dict:
+    """The last record per object (later lines supersede earlier ones)."""
+    out = {}
+    if path.exists():
+        for n, line in enumerate(path.read_text().splitlines(), 1):
+            if line.strip():
+                try:
+                    rec = json.loads(line)
+                except json.JSONDecodeError as e:
+                    raise SystemExit(f"error: {path}:{n}: not JSON ({e})") from None
+                out[rec["object"]] = rec
+    return out
+
+
+def record_of(obj: str, run_dir: Path, post: dict, seconds: float, commit: str) -> dict:
+    """The results line of one object from its posterior.json (and the run's metrics.json)."""
+    d, pred = post["diagnostics"], post["predictive"]
+    metrics_file = run_dir / "metrics.json"
+    metrics = json.loads(metrics_file.read_text()) if metrics_file.exists() else {}
+    return {
+        "object": obj,
+        "run": str(run_dir),
+        "commit": commit,
+        "converged": post["converged"],
+        "failed": post["failed"],
+        "tau_max": d.get("tau_max"),
+        "rhat": d.get("rhat"),
+        "ess_bulk": d.get("ess_bulk"),
+        "acceptance": d.get("acceptance"),
+        "map": post["map"],
+        "median": d["median"],
+        "q05": d["q05"],
+        "q95": d["q95"],
+        "sigma_px": post["likelihood"]["sigma_px"],
+        "com_inside_fit": pred.get("com_height_truth_inside_fit"),
+        "com_inside_future": pred.get("com_height_truth_inside_future"),
+        "com_disp_inside_fit": pred.get("com_height_disp_truth_inside_fit"),
+        "com_disp_inside_future": pred.get("com_height_disp_truth_inside_future"),
+        "lowest_disp_inside_future": pred.get("lowest_height_disp_truth_inside_future"),
+        "median_future_cd": pred.get("median_future_cd"),
+        "map_future_cd": pred.get("map_future_cd"),
+        # posterior.json written before the "still" of the last fit frame existed held the rest state:
+        # the run's own still baseline is the same quantity (the point estimate's last fit frame)
+        "still_future_cd": (
+            pred.get("still_future_cd")
+            if "still_cd_per_future_frame" in pred
+            else (metrics.get("baseline_future_cd_by_variant") or {}).get("still")
+        ),
+        "run_future_cd": metrics.get("future_cd"),  # the run's own score (rendered Gaussians' centres, its evaluator)
+        "run_still_future_cd": metrics.get("baseline_future_cd"),
+        "rollouts": post["cost"]["rollouts"],
+        "seconds": seconds,
+    }
+
+
+def _fmt(x, spec=".3g"):
+    return "-" if x is None else format(x, spec)
+
+
+def markdown(results: dict) -> str:
+    lines = [
+        "| object | converged | log10 k shift 5-95% | com in band, future (height / displacement) "
+        "| future CD: posterior median / point estimate / still | minutes |",
+        "|---|---|---|---|---|---|",
+    ]
+    for obj, r in results.items():
+        shift = "-"
+        if "log10_k_shift" in r["median"]:
+            shift = f"{r['median']['log10_k_shift']:+.2f} [{r['q05']['log10_k_shift']:+.2f}, {r['q95']['log10_k_shift']:+.2f}]"
+        cover = f"{_fmt(r['com_inside_future'], '.0%')} / {_fmt(r['com_disp_inside_future'], '.0%')}"
+        cds = f"{_fmt(r['median_future_cd'])} / {_fmt(r['map_future_cd'])} / {_fmt(r['still_future_cd'])}"
+        lines.append(
+            f"| {obj} | {'yes' if r['converged'] else 'no'} | {shift} | {cover} | {cds} | {r['seconds'] / 60:.1f} |"
+        )
+    return "\n".join(lines)
+
+
+def summary(results: dict) -> dict:
+    rows = list(results.values())
+
+    def mean(key):
+        vals = [r[key] for r in rows if r.get(key) is not None]
+        return sum(vals) / len(vals) if vals else None
+
+    return {
+        "objects": len(rows),
+        "converged": sum(bool(r["converged"]) for r in rows),
+        "com_inside_future_mean": mean("com_inside_future"),
+        "com_disp_inside_future_mean": mean("com_disp_inside_future"),
+        "median_future_cd_mean": mean("median_future_cd"),
+        "map_future_cd_mean": mean("map_future_cd"),
+        "still_future_cd_mean": mean("still_future_cd"),
+        "median_beats_map": sum(
+            r["median_future_cd"] < r["map_future_cd"]
+            for r in rows
+            if r.get("median_future_cd") and r.get("map_future_cd")
+        ),
+        "median_beats_still": sum(
+            r["median_future_cd"] < r["still_future_cd"]
+            for r in rows
+            if r.get("median_future_cd") and r.get("still_future_cd")
+        ),
+    }
+
+
+def _commit() -> str:
+    proc = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+    return proc.stdout.strip() or "unknown"
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(
+        description=__doc__.split("\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("--preset", default="small")
+    p.add_argument("--objects", default=",".join(OBJECTS))
+    p.add_argument("--runs", default="outputs/{object}_{preset}_s0", help="run folder pattern ({object}, {preset})")
+    p.add_argument("--results", default="", help="default results/posterior_objects_<preset>.jsonl")
+    p.add_argument("--threads", type=int, default=0)
+    p.add_argument("--set", action="append", default=[], help="a config override for every posterior (key=value)")
+    p.add_argument("--rerun", action="store_true", help="run objects already in the results file again")
+    p.add_argument("--summary", action="store_true", help="print the table and the summary, run nothing")
+    args = p.parse_args(argv)
+    results_path = Path(args.results or ROOT / "results" / f"posterior_objects_{args.preset}.jsonl")
+    results = read_results(results_path)
+    if args.summary:
+        print(markdown(results))
+        print(json.dumps(summary(results)))
+        return 0
+    objects = [o for o in args.objects.split(",") if o]
+    runs = {o: Path(args.runs.format(object=o, preset=args.preset)) for o in objects}
+    missing = [f"{o}: {r}" for o, r in runs.items() if not (r / "asset").is_dir()]
+    if missing:  # before any minutes of work
+        raise SystemExit(
+            "error: no finished run (asset/) for " + "; ".join(missing) + " (make reproduce, or --runs PATTERN)"
+        )
+    todo = [o for o in objects if args.rerun or o not in results]
+    print(f"{len(todo)} of {len(objects)} objects to run; results append to {results_path}", flush=True)
+    results_path.parent.mkdir(parents=True, exist_ok=True)
+    for obj in todo:
+        run_dir = runs[obj]
+        cmd = [sys.executable, "experiments/posterior.py", f"preset={args.preset}", f"posterior.run={run_dir}"]
+        cmd += [f"threads={args.threads}", "tracking.enabled=false", *args.set]
+        t0 = time.time()
+        log_file = run_dir / "posterior.log"
+        with log_file.open("w") as log:
+            proc = subprocess.run(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, text=True)
+        if proc.returncode != 0:
+            tail = log_file.read_text().strip().splitlines()[-2:]
+            print(f"{obj}: posterior failed ({log_file}): {' / '.join(tail)}", flush=True)
+            continue
+        post = json.loads((run_dir / "posterior" / "posterior.json").read_text())
+        rec = record_of(obj, run_dir, post, time.time() - t0, _commit())
+        with results_path.open("a") as f:
+            f.write(json.dumps(rec) + "\n")
+        print(f"{obj}: {post['headline'][:100]} ({rec['seconds'] / 60:.1f} min)", flush=True)
+    results = read_results(results_path)
+    print(markdown(results))
+    print(json.dumps(summary(results)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

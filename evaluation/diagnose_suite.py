@@ -198,6 +198,10 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
         for n, c in diag["candidates"].items()
     }
     rec["base"] = diag["base"]
+    if diag.get("rebase"):
+        rb = diag["rebase"]
+        kept = {n: st["values"] for n, st in rb["steps"].items() if st["kept"]}
+        rec["base_refit"] = {"values": kept, "held_out_gain": rb["held_out_gain"], "future_gain": rb["future_gain"]}
     rec["diagnose_seconds"] = diag["seconds"]
     if (run_dir / "metrics.json").exists():
         m = json.loads((run_dir / "metrics.json").read_text())

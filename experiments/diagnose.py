@@ -55,6 +55,13 @@ def diagnose(cfg: DictConfig) -> None:
             for n, v in record["candidates"].items()
         },
         "base_held_out_loss": record["base"]["d_held_out"],
+        "base_refit": None
+        if record.get("rebase") is None
+        else {
+            "values": {n: st["values"] for n, st in record["rebase"]["steps"].items() if st["kept"]},
+            "held_out_gain": record["rebase"]["held_out_gain"],
+            "future_gain": record["rebase"]["future_gain"],
+        },
         "v0_refit": record["v0_refit"],
         "residuals": record.get("residuals"),
         "seconds": round(record["seconds"], 1),

@@ -44,12 +44,12 @@ def tiny(tmp_path_factory):
     return root, overrides, out.run_dir, size
 
 
-def diagnose(tiny, physics: dict, name: str, *extra, fields=None):
+def diagnose(tiny, physics: dict, name: str, *extra, fields=None, truth=None):
     from sgdr.discrepancy.run import run_diagnosis
     from sgdr.posterior.twin import twin_sequence
 
     root, overrides, run_dir, _ = tiny
-    twin = twin_sequence(run_dir / "asset", root / f"twin_{name}", {}, physics=physics, fields=fields)
+    twin = twin_sequence(run_dir / "asset", root / f"twin_{name}", truth or {}, physics=physics, fields=fields)
     cfg = OmegaConf.to_object(
         compose(
             [
@@ -90,6 +90,27 @@ def test_null_twin_names_no_cause(tiny):
     assert 'id="model-discrepancy"' in page and "Cause named: none" in page
     state = assert_report_reads_well(Path(r["report"]))
     assert "where the silhouettes disagree" in [i["alt"] for i in state["images"]]
+
+
+def test_a_stiffer_twin_is_refit_not_named_and_its_refit_asset_loads(tiny):
+    """A stiffness the base model class holds (the whole field 10^0.5 stiffer) is the base refit's
+    to find, not a cause: the refit recovers the shift, the candidate is judged over the refit, and
+    the refit asset is written for simulate.py."""
+    from sgdr.pipeline.asset import load_asset
+
+    shift = 0.5
+    r = diagnose(tiny, {}, "stiffer", "diagnose.candidates=[heterogeneous_stiffness]", truth={"log10_k_shift": shift})
+    rebase = r["rebase"]
+    assert rebase["steps"]["stiffness"]["kept"]
+    assert rebase["steps"]["stiffness"]["values"]["log10_k_shift"] == pytest.approx(shift, abs=0.1), rebase
+    assert rebase["held_out_gain"] > 0.5, rebase
+    assert r["cause"] == "none", {k: v["gain"] for k, v in r["candidates"].items()}
+    refit = load_asset(r["refit_asset"])
+    original = load_asset(Path(r["run"]) / "asset")
+    moved = np.asarray(refit.values["log10_k"]) - np.asarray(original.values["log10_k"])
+    assert np.allclose(moved, rebase["steps"]["stiffness"]["values"]["log10_k_shift"], atol=1e-6)
+    assert refit.n_substeps >= original.n_substeps
+    assert json.loads((Path(r["refit_asset"]) / "asset.json").read_text())["refit"]["held_out_gain"] > 0.5
 
 
 def test_a_moved_ground_is_named_with_its_offset(tiny):

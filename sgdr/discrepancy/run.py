@@ -105,6 +105,7 @@ def run_diagnosis(cfg) -> dict:
     margin = float(dc.floor_margin)
     asset_fit = dict(base)  # the asset's own fit, before any refit
     rebase = refit_controls(ev, ctx, dc, dc.evaluations) if dc.rebase else None
+    refit_values = rebase.pop("replacements") if rebase is not None else {}
     if rebase is not None:
         rebase["held_out_gain"] = excess_gain(rebase["d_held_out"], base["d_held_out"], floor["held_out"], margin)
         rebase["future_gain"] = (
@@ -126,6 +127,7 @@ def run_diagnosis(cfg) -> dict:
         if rebase is not None:  # the base's own parameters refitted with the candidate in place
             settings, repl = cand.apply(ctx, fit.values, fit.variant)
             joint = refit_controls(ev, ctx, dc, max(4, int(dc.evaluations) // 2), settings, repl)
+            joint.pop("replacements")
             fit = replace(fit, d_fit=joint["d_fit"], d_held_out=joint["d_held_out"], d_future=joint["d_future"])
         gain = excess_gain(fit.d_held_out, base["d_held_out"], floor["held_out"], margin)
         future_gain = (
@@ -150,6 +152,7 @@ def run_diagnosis(cfg) -> dict:
             "evaluations": len(fit.evaluated),
             "gain_over_asset_fit": excess_gain(d_alone, asset_fit["d_held_out"], floor["held_out"], margin),
             "controls": None if joint is None else {n: st["values"] for n, st in joint["steps"].items()},
+            "controls_kept": None if joint is None else [n for n, st in joint["steps"].items() if st["kept"]],
         }
         log.info("diagnose: %s = %s, held-out gain %.3f", name, fit.values, gain)
     best = max(candidates, key=lambda n: candidates[n]["gain"]) if candidates else None
@@ -176,6 +179,9 @@ def run_diagnosis(cfg) -> dict:
     }
     out = Path(dc.out_dir) if dc.out_dir else run_dir / "diagnose"
     out.mkdir(parents=True, exist_ok=True)
+    if refit_values and rebase["held_out_gain"] > 0:  # the refit carries to the held-out views: offer it
+        record["refit_asset"] = str(write_refit_asset(asset, refit_values, out / "asset_refit", rebase))
+        log.info("diagnose: the refit asset -> %s", record["refit_asset"])
     residuals, plots = None, None
     if dc.residuals:
         parts = [(fit_views, obs_fit), (held_views, obs_held), (views, obs_future)]
@@ -202,13 +208,14 @@ def refit_controls(ev, ctx, dc, evaluations: int, settings: dict | None = None, 
     refitted on the fitting views, one after another, each kept when it lowers the fitting D, on
     top of a candidate's physics `settings` and value replacements `values` (none: the asset's
     fit alone, the diagnosis's reference). `ev` and `ctx` are left as they were. Returns per
-    control its fitted value and losses, and the losses (d_fit, d_held_out, d_future) at the end."""
+    control its fitted value and losses, the losses (d_fit, d_held_out, d_future) at the end, and
+    `replacements`: the asset values the kept controls replace (arrays; not for diagnosis.json)."""
     from sgdr.discrepancy.candidates import CONTROLS, fit_candidate
 
     saved = (dict(ev.values), dict(ev.settings), ctx.values)
     ev.rebase(values or {}, settings or {})
     ctx.values = {**ctx.values, **(values or {})}
-    steps, d_fit = {}, ev.d({}, ev.obs_fit)
+    steps, kept, d_fit = {}, {}, ev.d({}, ev.obs_fit)
     try:
         for name in dc.rebase:
             cand = CONTROLS.get_named(name, "diagnose.rebase")
@@ -219,12 +226,43 @@ def refit_controls(ev, ctx, dc, evaluations: int, settings: dict | None = None, 
             if use:
                 ev.rebase(repl)
                 ctx.values = {**ctx.values, **repl}
+                kept.update(repl)
                 d_fit = fit.d_fit
         out = {"steps": steps, "d_fit": ev.d({}, ev.obs_fit), "d_held_out": ev.d({}, ev.obs_held)}
+        out["replacements"] = kept
         out["d_future"] = ev.d({}, ev.obs_future) if ev.obs_future is not None else None
     finally:
         ev.reset(saved[0], saved[1])
         ctx.values = saved[2]
+    return out
+
+
+def write_refit_asset(asset, replacements: dict, out: Path, rebase: dict) -> Path:
+    """A copy of the asset folder with the refitted values (`experiments/simulate.py` loads it like
+    any asset); n_substeps raised to the stability bound of the new stiffness when needed. asset.json
+    gets a "refit" entry saying where the values come from."""
+    import shutil
+    from types import SimpleNamespace
+
+    from sgdr.physics.simulate import stable_substeps
+
+    out = Path(out)
+    if out.exists():
+        shutil.rmtree(out)
+    shutil.copytree(asset.root, out, ignore=shutil.ignore_patterns("DONE.json"))
+    values = {**asset.values, **replacements}
+    np.savez(out / "params.npz", **{k: np.asarray(v, np.float64) for k, v in values.items()})
+    model, _ = asset.build()
+    view = SimpleNamespace(log10_k=np.asarray(values["log10_k"], float), kappa=float(values["kappa"]))
+    meta = json.loads((out / "asset.json").read_text())
+    meta["n_substeps"] = max(int(asset.n_substeps), stable_substeps(model, view, 1.0 / asset.fps, asset.physics))
+    meta["refit"] = {
+        "from": str(asset.root),
+        "by": "experiments/diagnose.py (diagnose.rebase)",
+        "values": {n: st["values"] for n, st in rebase["steps"].items() if st["kept"]},
+        "held_out_gain": rebase["held_out_gain"],
+    }
+    (out / "asset.json").write_text(json.dumps(meta, indent=1))
     return out
 
 

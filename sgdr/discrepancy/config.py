@@ -26,6 +26,7 @@ class DiagnoseConfig:
     # the base model's own parameters refitted on the measure before the candidates (CONTROLS names;
     # [] = judge candidates against the run's fit as it is): flexibility inside the base's class
     rebase: list = field(default_factory=lambda: ["stiffness", "friction", "restitution"])
+    refit_min_gain: float = 0.05  # held-out gain of the base refit over the run's fit that writes diagnose/asset_refit
     discrepancy: str = (
         "render"  # how a rollout is measured against the images: render | points (sgdr.discrepancy.measures)
     )
@@ -49,6 +50,7 @@ CHECKS = {
     "out_dir": any_text("empty: <run>/diagnose"),
     "candidates": list_of(choice("sgdr.discrepancy.candidates:CANDIDATES"), min_len=1),
     "rebase": list_of(choice("sgdr.discrepancy.candidates:CONTROLS")),
+    "refit_min_gain": between(0.0, 1.0),
     "discrepancy": choice("sgdr.discrepancy.measures:MEASURES"),
     "max_image_size": at_least(8),
     "n_points": at_least(8),

@@ -179,7 +179,7 @@ def run_diagnosis(cfg) -> dict:
     }
     out = Path(dc.out_dir) if dc.out_dir else run_dir / "diagnose"
     out.mkdir(parents=True, exist_ok=True)
-    if refit_values and rebase["held_out_gain"] > 0:  # the refit carries to the held-out views: offer it
+    if refit_values and rebase["held_out_gain"] >= float(dc.refit_min_gain):  # it carries to the held-out views
         record["refit_asset"] = str(write_refit_asset(asset, refit_values, out / "asset_refit", rebase))
         log.info("diagnose: the refit asset -> %s", record["refit_asset"])
     residuals, plots = None, None

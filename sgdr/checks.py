@@ -21,7 +21,7 @@ from __future__ import annotations
 import importlib
 import math
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -112,6 +112,15 @@ def list_of(each: Check, min_len: int = 0) -> Check:
 
     length = f"at least {min_len} " if min_len else ""
     return Check(ok, f"must be a list of {length}values, each {_bare(each)}")
+
+
+def dict_of(each: Check, keys: Check) -> Check:
+    """A mapping whose keys pass `keys` and whose values pass `each`."""
+
+    def ok(x) -> bool:
+        return isinstance(x, Mapping) and all(keys.ok(k) and each.ok(v) for k, v in x.items())
+
+    return Check(ok, lambda: f"must be a mapping (keys {keys.describe()}; values {each.describe()})")
 
 
 def _bare(check: Check) -> str:

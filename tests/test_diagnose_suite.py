@@ -93,11 +93,18 @@ def _rec(id_, expected, cause, gains):
         "correct": cause == expected,
         "effect": id_.split("-")[1],
         "candidates": cands,
+        "base_refit": {"values": {}, "held_out_gain": 0.0, "future_gain": 0.0},
     }
 
 
-def test_summary_bars():
+def test_summary_bars(monkeypatch):
+    from sgdr.discrepancy import config as dconf
+
+    monkeypatch.setattr(dconf, "MIN_GAIN_BY_CANDIDATE", {"gravity": 0.1, "air_drag": 0.1})
+    old = _rec("g-none", "none", "gravity", {"gravity": 0.9, "air_drag": 0.0})
+    del old["base_refit"]  # diagnosed before the base refit: kept in the file, not counted
     results = {
+        "g-none": old,
         "a-none": _rec("a-none", "none", "none", {"gravity": 0.02, "air_drag": 0.05}),
         "b-none": _rec("b-none", "none", "gravity", {"gravity": 0.2, "air_drag": 0.01}),
         "c-gravity": _rec("c-gravity", "gravity", "gravity", {"gravity": 0.5, "air_drag": 0.1}),
@@ -110,5 +117,10 @@ def test_summary_bars():
     assert s["injected_cases"] == 3 and s["injected_named_share"] == pytest.approx(2 / 3)
     assert s["named_gain_share_ge_0.3"] == pytest.approx(1 / 3)
     assert s["null_max_gain"] == {"gravity": 0.2, "air_drag": 0.05}
-    assert s["failed"] == ["f"]
+    assert s["failed"] == ["f"] and s["before_base_refit"] == ["g-none"]
     assert "✗" in S.markdown(results)
+    # a recalibrated threshold re-decides the recorded gains: b-none's 0.2 no longer names gravity
+    monkeypatch.setattr(dconf, "MIN_GAIN_BY_CANDIDATE", {"gravity": 0.25, "air_drag": 0.1})
+    s = S.summary(results)
+    assert s["null_none_share"] == 1.0 and s["injected_named_share"] == pytest.approx(1 / 3)
+    assert S.redecide(results["c-gravity"]) == "gravity"

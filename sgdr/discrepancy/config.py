@@ -4,7 +4,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from sgdr.checks import any_text, at_least, between, choice, list_of
+from sgdr.checks import any_text, at_least, between, choice, dict_of, list_of
+
+# The held-out gain each candidate needs to be named (docs/discrepancy.md, "Calibrated on MPM nulls")
+MIN_GAIN_BY_CANDIDATE = {
+    "air_drag": 0.1,
+    "gravity": 0.1,
+    "ground_plane": 0.1,
+    "ground_tilt": 0.1,
+    "contact": 0.1,
+    "plasticity": 0.1,
+    "heterogeneous_stiffness": 0.1,
+}
 
 
 @dataclass
@@ -39,6 +50,9 @@ class DiagnoseConfig:
         0.05  # the room above the floor a gain is a share of is at least this x the floor (run.excess_gain)
     )
     min_gain: float = 0.1  # held-out gain 1 - D_candidate / D_base needed to name a cause (docs/discrepancy.md)
+    # per-candidate thresholds overriding min_gain (e.g. diagnose.min_gain_by_candidate.ground_tilt=0.5),
+    # calibrated on the MPM null cases (docs/discrepancy.md)
+    min_gain_by_candidate: dict = field(default_factory=lambda: dict(MIN_GAIN_BY_CANDIDATE))
     residuals: bool = True  # also the residual diagnostics of the base fit (residuals.json, residual_*.png)
     residual_grid: int = 48  # blocks on the long side of the spatial residual maps (full resolution when larger)
     residual_views: int = 4  # views shown in residual_spatial.png (those that disagree most)
@@ -59,6 +73,7 @@ CHECKS = {
     "evaluations": at_least(4),
     "floor_margin": between(0.0, 1.0),
     "min_gain": between(0.0, 1.0),
+    "min_gain_by_candidate": dict_of(between(0.0, 1.0), keys=choice("sgdr.discrepancy.candidates:CANDIDATES")),
     "residual_grid": at_least(4),
     "residual_views": at_least(1),
 }

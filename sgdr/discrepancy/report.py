@@ -134,13 +134,15 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
     from sgdr.pipeline.report_html import Section, esc, image, paragraph, table
 
     body = [f'<p id="discrepancy-cause"><b>Cause named: {esc(diagnosis["cause"])}</b> '
-            f"(a candidate is named when its held-out gain is at least {diagnosis['min_gain']:g}).</p>"]  # fmt: skip
+            "(a candidate is named when its held-out gain reaches its threshold, calibrated on null data; the largest "
+            "such gain wins).</p>"]  # fmt: skip
     rows = [
         [n, c["changes"], ", ".join(f"{k} = {_g(v)}" for k, v in (c["values"] or {}).items()),
-         _g(c["gain"]), _g(c["future_gain"]), c["decision"]]
+         _g(c["gain"]), _g(c.get("min_gain", diagnosis["min_gain"])), _g(c["future_gain"]), c["decision"]]
         for n, c in diagnosis["candidates"].items()
     ]  # fmt: skip
-    body.append(table(["candidate", "changes", "fitted values", "held-out gain", "future gain", "decision"], rows))
+    header = ["candidate", "changes", "fitted values", "held-out gain", "threshold", "future gain", "decision"]
+    body.append(table(header, rows))
     base, unit = diagnosis["base"], diagnosis["discrepancy"]["unit"]
     rebase = diagnosis.get("rebase")
     if rebase:

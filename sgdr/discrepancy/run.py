@@ -7,8 +7,9 @@
    positions), and the future frames in all views when the sequence has future frames.
 3. The base model's D on each, then every candidate (`sgdr.discrepancy.candidates`) fitted on
    the fitting views and judged on the held-out ones.
-4. The decision: the candidate with the largest held-out gain is the cause if that gain is at
-   least `diagnose.min_gain`, else "none"; gain = 1 - (D_held_out(candidate) - floor) /
+4. The decision: among the candidates whose held-out gain reaches their threshold
+   (`diagnose.min_gain_by_candidate`, else `diagnose.min_gain`), the largest gain names the cause;
+   none passing: "none"; gain = 1 - (D_held_out(candidate) - floor) /
    (D_held_out(base) - floor), the share of the base's discrepancy above the floor it removes.
    The floor is frame 0's D in the same views, once per frame: the rest state is the static
    fit's and no extension changes it, so what it leaves (appearance, the measure's own
@@ -46,6 +47,19 @@ def excess_gain(d: float, d_base: float, floor: float | None, margin: float = 0.
     floor = 0.0 if floor is None else float(floor)
     room = max(float(d_base) - floor, float(margin) * floor, 1e-12 * abs(float(d_base)), 1e-300)
     return (float(d_base) - float(d)) / room
+
+
+def threshold(dc, name: str) -> float:
+    """The held-out gain candidate `name` needs to be named: `diagnose.min_gain_by_candidate[name]`,
+    else `diagnose.min_gain`."""
+    return float((dc.min_gain_by_candidate or {}).get(name, dc.min_gain))
+
+
+def decide(gains: dict, thresholds: dict) -> str | None:
+    """The candidate named: the largest gain among those at or above their own threshold (None:
+    no candidate passes, the cause is "none")."""
+    passing = [n for n, g in gains.items() if g is not None and np.isfinite(g) and g >= thresholds[n]]
+    return max(passing, key=lambda n: gains[n]) if passing else None
 
 
 def _same_sequence(a, b) -> bool:
@@ -155,12 +169,13 @@ def run_diagnosis(cfg) -> dict:
             "controls_kept": None if joint is None else [n for n, st in joint["steps"].items() if st["kept"]],
         }
         log.info("diagnose: %s = %s, held-out gain %.3f", name, fit.values, gain)
-    best = max(candidates, key=lambda n: candidates[n]["gain"]) if candidates else None
-    named = best is not None and candidates[best]["gain"] >= float(dc.min_gain)
+    thresholds = {n: threshold(dc, n) for n in candidates}
+    best = decide({n: c["gain"] for n, c in candidates.items()}, thresholds)
     for name, c in candidates.items():
-        c["decision"] = "cause" if named and name == best else "rejected"
+        c["min_gain"] = thresholds[name]
+        c["decision"] = "cause" if name == best else "rejected"
     record = {
-        "cause": candidates[best]["cause"] if named else "none",
+        "cause": candidates[best]["cause"] if best is not None else "none",
         "candidates": candidates,
         "base": base,
         "asset_fit": asset_fit,

@@ -11,7 +11,8 @@ acting in the truth only (`synth.effects.*`; the sequence records the nominal sc
 pipeline (`experiments/reconstruct.py`) fits the base model to it, and `experiments/diagnose.py`
 names a cause. Each finished case appends one JSON line to the results file
 (`results/diagnose_suite_<preset>.jsonl`, committed); a rerun skips every case whose last line
-there is finished, so the suite runs over several sittings. Stiffness-ratio cases (and their
+there is finished with the base refit (earlier records are run again), so the suite runs over
+several sittings. Stiffness-ratio cases (and their
 nulls) use the global-k base (`method=single_k`): the heterogeneous-stiffness candidate is
 judged against one stiffness.
 
@@ -357,7 +358,8 @@ def main(argv=None) -> int:
     if args.rediagnose:
         todo = [c for c in cases if (Path(args.output_dir) / c.id / "asset").exists()]
     else:
-        todo = [c for c in cases if results.get(c.id, {}).get("status") != "ok"]
+        # finished = diagnosed with the base refit; a record from before it is run again (`_current`)
+        todo = [c for c in cases if not _current(results.get(c.id, {}))]
     if args.max_cases:
         todo = todo[: args.max_cases]
     from tqdm import tqdm

@@ -122,8 +122,9 @@ def parse_case(text: str) -> Case:
     return Case(parts[0], parts[1], float(parts[2]), int(parts[3]))
 
 
-def read_results(path: Path) -> dict:
-    """The last record per case id in the results file (later lines supersede earlier ones)."""
+def read_results(path: Path, key: str = "id") -> dict:
+    """The last record per `key` (a case's id) in a JSON-lines results file (later lines supersede
+    earlier ones)."""
     out = {}
     if path.exists():
         for n, line in enumerate(path.read_text().splitlines(), 1):
@@ -132,7 +133,7 @@ def read_results(path: Path) -> dict:
                     rec = json.loads(line)
                 except json.JSONDecodeError as e:
                     raise SystemExit(f"error: {path}:{n}: not JSON ({e})") from None
-                out[rec["id"]] = rec
+                out[rec[key]] = rec
     return out
 
 

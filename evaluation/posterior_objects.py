@@ -33,16 +33,9 @@ OBJECTS = ("torus", "cross", "cream", "apple", "paste", "chess", "banana")
 
 def read_results(path: Path) -> dict:
     """The last record per object (later lines supersede earlier ones)."""
-    out = {}
-    if path.exists():
-        for n, line in enumerate(path.read_text().splitlines(), 1):
-            if line.strip():
-                try:
-                    rec = json.loads(line)
-                except json.JSONDecodeError as e:
-                    raise SystemExit(f"error: {path}:{n}: not JSON ({e})") from None
-                out[rec["object"]] = rec
-    return out
+    from evaluation.diagnose_suite import read_results as read_jsonl
+
+    return read_jsonl(path, key="object")
 
 
 def record_of(obj: str, run_dir: Path, post: dict, seconds: float, commit: str) -> dict:

@@ -88,16 +88,24 @@ def score_run(run_dir: Path, threads: int = 0) -> dict:
         return {"future_cd": float(np.mean(cd)), "future_emd": float(np.mean(emd)), "stable": True}
 
     kept = {n: st["values"] for n, st in diag["rebase"]["steps"].items() if st["kept"]}
+    # the second sweep of the controls (diagnoses since it exists), applied after the first
+    second = {n: st["values"] for n, st in (diag["rebase"].get("second_sweep") or {}).items() if st["kept"]}
     out = {"run": str(run_dir), "cause": diag["cause"], "refit_values": kept}
     out["asset"] = future_scores({}, {})
-    out["refit"] = future_scores(_replacements(context(), kept), {})
+    ctx = context()
+    out["refit"] = future_scores({**_replacements(ctx, kept), **_replacements(ctx, second)}, {})
     cands = {n: c for n, c in diag["candidates"].items() if c.get("controls") is not None}
     if cands:
         best = max(cands, key=lambda n: cands[n]["gain"])
         c = cands[best]
         ctx = context()
+        # since `candidates_from` = "refit" a candidate is fitted on top of the refit base
+        first = (
+            {**_replacements(ctx, kept), **_replacements(ctx, second)} if diag.get("candidates_from") == "refit" else {}
+        )
         settings, repl = CANDIDATES.get_named(best, "diagnose.candidates").apply(ctx, c["values"], c["variant"])
         ctx.values = {**ctx.values, **repl}
+        repl = {**first, **repl}
         # the controls the joint refit kept (a diagnosis written before `controls_kept` existed: all of them)
         names = c.get("controls_kept", list(c["controls"]))
         repl = {**repl, **_replacements(ctx, {n: c["controls"][n] for n in names})}

@@ -105,10 +105,19 @@ def test_a_stiffer_twin_is_refit_not_named_and_its_refit_asset_loads(tiny):
     assert rebase["steps"]["stiffness"]["values"]["log10_k_shift"] == pytest.approx(shift, abs=0.1), rebase
     assert rebase["held_out_gain"] > 0.5, rebase
     assert r["cause"] == "none", {k: v["gain"] for k, v in r["candidates"].items()}
+    # the candidate is fitted on top of the refit (nested in it): no fitting loss above the base's,
+    # and no stiffness ratio standing in for the shift the refit already took
+    c = r["candidates"]["heterogeneous_stiffness"]
+    assert r["candidates_from"] == "refit"
+    assert c["fit_loss"] <= r["base"]["d_fit"] * (1 + 1e-9), (c, r["base"])
+    assert abs(c["value"]) < 0.3, c
     refit = load_asset(r["refit_asset"])
     original = load_asset(Path(r["run"]) / "asset")
     moved = np.asarray(refit.values["log10_k"]) - np.asarray(original.values["log10_k"])
-    assert np.allclose(moved, rebase["steps"]["stiffness"]["values"]["log10_k_shift"], atol=1e-6)
+    total = rebase["steps"]["stiffness"]["values"]["log10_k_shift"]
+    second = rebase["second_sweep"]["stiffness"]  # the second sweep of the controls, when it was kept
+    total += second["values"]["log10_k_shift"] if second["kept"] else 0.0
+    assert np.allclose(moved, total, atol=1e-6)
     assert refit.n_substeps >= original.n_substeps
     assert json.loads((Path(r["refit_asset"]) / "asset.json").read_text())["refit"]["held_out_gain"] > 0.5
 

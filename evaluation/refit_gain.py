@@ -99,10 +99,8 @@ def score_run(run_dir: Path, threads: int = 0) -> dict:
         best = max(cands, key=lambda n: cands[n]["gain"])
         c = cands[best]
         ctx = context()
-        # since `candidates_from` = "refit" a candidate is fitted on top of the refit base
-        first = (
-            {**_replacements(ctx, kept), **_replacements(ctx, second)} if diag.get("candidates_from") == "refit" else {}
-        )
+        # a candidate fitted again from the refit base (diagnosis.json "from") starts from its values
+        first = {**_replacements(ctx, kept), **_replacements(ctx, second)} if c.get("from") == "refit" else {}
         settings, repl = CANDIDATES.get_named(best, "diagnose.candidates").apply(ctx, c["values"], c["variant"])
         ctx.values = {**ctx.values, **repl}
         repl = {**first, **repl}

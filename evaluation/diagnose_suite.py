@@ -196,7 +196,7 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
     diag = json.loads((run_dir / "diagnose" / "diagnosis.json").read_text())
     rec.update(status="ok", cause=diag["cause"], correct=diag["cause"] == case.expected, truth=diag.get("truth", {}))
     rec["candidates"] = {
-        n: {k: c[k] for k in ("value", "interval", "gain", "future_gain", "held_out_loss")}
+        n: {k: c.get(k) for k in ("value", "interval", "gain", "future_gain", "held_out_loss", "window", "at_null")}
         for n, c in diag["candidates"].items()
     }
     rec["base"] = diag["base"]

@@ -94,7 +94,7 @@ def score_run(run_dir: Path, threads: int = 0) -> dict:
     out["asset"] = future_scores({}, {})
     ctx = context()
     out["refit"] = future_scores({**_replacements(ctx, kept), **_replacements(ctx, second)}, {})
-    cands = {n: c for n, c in diag["candidates"].items() if c.get("controls") is not None}
+    cands = dict(diag["candidates"])
     if cands:
         best = max(cands, key=lambda n: cands[n]["gain"])
         c = cands[best]
@@ -105,7 +105,8 @@ def score_run(run_dir: Path, threads: int = 0) -> dict:
         ctx.values = {**ctx.values, **repl}
         repl = {**first, **repl}
         # the controls the joint refit kept (a diagnosis written before `controls_kept` existed: all of them)
-        names = c.get("controls_kept", list(c["controls"]))
+        # (a free-flight candidate refits none: "controls" null)
+        names = c.get("controls_kept", list(c.get("controls") or {})) or []
         repl = {**repl, **_replacements(ctx, {n: c["controls"][n] for n in names})}
         out["best_candidate"] = {"name": best, "gain": c["gain"], "values": c["values"]}
         out["refit_and_candidate"] = future_scores(repl, settings)

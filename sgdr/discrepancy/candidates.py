@@ -65,6 +65,9 @@ class Candidate:
     apply: Callable  # (Context, {name: value}, variant) -> (physics settings, value replacements)
     describes: str  # what it changes, for diagnosis.json and the docs
     variants: tuple = (None,)  # discrete choices (e.g. an axis): each screened, the best fitting searched in full
+    # the frames it is fitted and judged on: "fit" (every fit frame) or "free_flight" (the fit frames
+    # before the recorded hit frame, where it acts alone; sgdr.discrepancy.run)
+    window: str = "fit"
 
 
 def _fall_basis(c: float, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -139,10 +142,18 @@ def _rebound(ctx: Context, x: dict, _variant):
 
 CANDIDATES = Registry("diagnosis candidate", "diagnose.candidates", ValueError)
 CANDIDATES["air_drag"] = Candidate(
-    "air_drag", (Param("value", 0.0, 8.0),), _free_fall("air_drag"), "physics.air_drag (1/s), v0 refitted"
+    "air_drag",
+    (Param("value", 0.0, 8.0),),
+    _free_fall("air_drag"),
+    "physics.air_drag (1/s), v0 refitted",
+    window="free_flight",
 )
 CANDIDATES["gravity"] = Candidate(
-    "gravity", (Param("value", 0.6, 1.4, null=1.0),), _free_fall("gravity_scale"), "physics.gravity_scale, v0 refitted"
+    "gravity",
+    (Param("value", 0.6, 1.4, null=1.0),),
+    _free_fall("gravity_scale"),
+    "physics.gravity_scale, v0 refitted",
+    window="free_flight",
 )
 CANDIDATES["ground_plane"] = Candidate(
     "ground_plane",

@@ -48,6 +48,9 @@ class DiagnoseConfig:
         "render"  # how a rollout is measured against the images: render | points (sgdr.discrepancy.measures)
     )
     max_image_size: int = 64  # "render": larger images are compared at this size (block means), pixels
+    # the free-flight window (gravity, drag: the fit frames before the hit frame) is compared at up to
+    # this size: few frames, and the fall's misfit there is a fraction of a pixel at max_image_size
+    free_flight_image_size: int = 256
     n_points: int = 200  # "points": bound Gaussian centres projected per view-frame (a fixed seeded subset)
     n_mask_points: int = 100  # "points": silhouette pixels sampled per view-frame (the coverage term)
     frame_stride: int = 1  # every frame_stride-th fit frame after frame 0
@@ -73,6 +76,7 @@ CHECKS = {
     "refit_min_gain": between(0.0, 1.0),
     "discrepancy": choice("sgdr.discrepancy.measures:MEASURES"),
     "max_image_size": at_least(8),
+    "free_flight_image_size": at_least(8),
     "n_points": at_least(8),
     "n_mask_points": at_least(8),
     "frame_stride": at_least(1),

@@ -148,6 +148,7 @@ def run_diagnosis(cfg) -> dict:
     # base's); the candidate is then fitted again from the refit base, the better fit kept.
     asset_state = (dict(ev.values), dict(ev.settings), ctx.values)
     refit_state = ({**ev.values, **refit_values}, dict(ev.settings), {**ctx.values, **refit_values})
+    flight = free_flight(seq, asset, measure, dc, cfg.seed, fit_views, held_views, fit_frames, score, refit_values)
 
     def fitted(cand, start: str):
         values, settings, ctx.values = asset_state if start == "asset" else refit_state
@@ -164,6 +165,11 @@ def run_diagnosis(cfg) -> dict:
     candidates = {}
     for name in dc.candidates:
         cand = CANDIDATES.get_named(name, "diagnose.candidates")
+        if cand.window == "free_flight" and flight is not None:
+            candidates[name] = judge_in_free_flight(cand, flight, ev, refit_state, ctx, base, floor, dc)
+            log.info("diagnose: %s = %s, free-flight held-out gain %.3f", name, candidates[name]["values"],
+                     candidates[name]["gain"])  # fmt: skip
+            continue
         fit, joint, d_alone, start = fitted(cand, "asset")
         if rebase is not None and fit.d_fit > base["d_fit"]:
             again = fitted(cand, "refit")
@@ -200,6 +206,7 @@ def run_diagnosis(cfg) -> dict:
             "controls_kept": None if joint is None else [n for n, st in joint["steps"].items() if st["kept"]],
             "at_null": at_null,
             "from": start,
+            "window": "fit",
         }
         log.info("diagnose: %s = %s, held-out gain %.3f", name, fit.values, gain)
     thresholds = {n: threshold(dc, n) for n in candidates}
@@ -219,6 +226,7 @@ def run_diagnosis(cfg) -> dict:
         "fitting_views": [seq.cameras[v].name for v in fit_views],
         "held_out_views": [seq.cameras[v].name for v in held_views],
         "frames": fit_frames.tolist(),
+        "free_flight": None if flight is None else flight["record"],
         "future_frames": future.tolist(),
         "sequence": str(seq_dir),
         "run": str(run_dir),
@@ -251,6 +259,80 @@ def run_diagnosis(cfg) -> dict:
     else:
         log.info("diagnose: %s missing, no report section added", report)
     return record
+
+
+def free_flight(seq, asset, measure, dc, seed, fit_views, held_views, fit_frames, score, refit_values) -> dict | None:
+    """The free-flight window's own evaluator: the fit frames before the sequence's hit frame
+    (where gravity and drag act alone: the object falls rigidly, no contact, no stiffness), the
+    images at up to `diagnose.free_flight_image_size`, the base the refit base (which the fall
+    does not see). None when fewer than 2 such frames: the free-flight candidates then use the
+    whole fit window like the rest."""
+    from dataclasses import replace as dc_replace
+
+    from sgdr.discrepancy.candidates import Evaluator
+    from sgdr.posterior.rollouts import ROLLOUTS
+
+    frames = fit_frames[fit_frames < int(seq.hit_frame)]
+    if frames.size < 2:
+        log.info("diagnose: %d fit frames before the hit frame %d: no free-flight window", frames.size, seq.hit_frame)
+        return None
+    fdc = dc_replace(dc, max_image_size=int(dc.free_flight_image_size))
+    obs_fit = measure.observe(seq, fit_views, frames, fdc, seed)
+    obs_held = measure.observe(seq, held_views, frames, fdc, seed)
+    ev = Evaluator(asset, ROLLOUTS.get_named("loop"), obs_fit, obs_held, None, score)
+    ev.rebase(refit_values)
+    zero = measure.observe(seq, held_views, np.array([0]), fdc, seed)
+    floor = float(frames.size * np.sum(score(zero, ev.positions({}))))
+    base = {"d_fit": ev.d({}, obs_fit), "d_held_out": ev.d({}, obs_held), "floor_held_out": floor}
+    record = {"frames": frames.tolist(), "hit_frame": int(seq.hit_frame), "base": base}
+    return {"ev": ev, "base": base, "floor": floor, "record": record}
+
+
+def judge_in_free_flight(cand, flight, ev, refit_state, ctx, base, floor, dc) -> dict:
+    """A free-flight candidate (gravity, drag) fitted on the fitting views' free-flight frames from
+    the refit base, its gain the share of the base's free-flight discrepancy above that window's
+    floor it removes on the held-out views; no controls refitted (the fall does not see them).
+    Its future loss is its whole rollout's (the refit base with the fitted value)."""
+    from sgdr.discrepancy.candidates import fit_candidate
+
+    saved_ctx = ctx.values
+    ctx.values = refit_state[2]
+    try:
+        fit = fit_candidate(flight["ev"], cand, ctx, dc.evaluations)
+        settings, repl = cand.apply(ctx, fit.values, fit.variant)
+    finally:
+        ctx.values = saved_ctx
+    fb, margin = flight["base"], float(dc.floor_margin)
+    at_null = bool(fit.d_fit > fb["d_fit"])
+    d_held = fb["d_held_out"] if at_null else fit.d_held_out
+    d_future = None
+    if ev.obs_future is not None:
+        ev.reset(refit_state[0], refit_state[1])
+        d_future = base["d_future"] if at_null else ev.d(settings, ev.obs_future, repl)
+    first = cand.params[0].name
+    return {
+        "cause": cand.cause,
+        "changes": cand.describes,
+        "value": fit.values[first],
+        "interval": list(fit.interval[first]),
+        "values": fit.values,
+        "intervals": {k: list(v) for k, v in fit.interval.items()},
+        "variant": fit.variant,
+        "settings": {f"physics.{k}": v for k, v in fit.settings.items()},
+        "fit_loss": fb["d_fit"] if at_null else fit.d_fit,
+        "held_out_loss": d_held,
+        "gain": excess_gain(d_held, fb["d_held_out"], flight["floor"], margin),
+        "relative_gain": 1.0 - d_held / fb["d_held_out"],
+        "future_loss": d_future,
+        "future_gain": None if d_future is None else excess_gain(d_future, base["d_future"], floor["future"], margin),
+        "evaluations": len(fit.evaluated),
+        "gain_over_asset_fit": None,
+        "controls": None,
+        "controls_kept": None,
+        "at_null": at_null,
+        "from": "refit",
+        "window": "free_flight",
+    }
 
 
 def refit_controls(ev, ctx, dc, evaluations: int, settings: dict | None = None, values: dict | None = None) -> dict:

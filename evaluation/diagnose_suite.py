@@ -196,7 +196,19 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
     diag = json.loads((run_dir / "diagnose" / "diagnosis.json").read_text())
     rec.update(status="ok", cause=diag["cause"], correct=diag["cause"] == case.expected, truth=diag.get("truth", {}))
     rec["candidates"] = {
-        n: {k: c.get(k) for k in ("value", "interval", "gain", "future_gain", "held_out_loss", "window", "at_null")}
+        n: {
+            k: c.get(k)
+            for k in (
+                "value",
+                "interval",
+                "gain",
+                "future_gain",
+                "held_out_loss",
+                "window",
+                "at_null",
+                "fit_window_gain",
+            )
+        }
         for n, c in diag["candidates"].items()
     }
     rec["base"] = diag["base"]
@@ -255,11 +267,12 @@ def redecide(rec: dict, thresholds: dict | None = None) -> str:
     `diagnose.min_gain_by_candidate`), so that the bars follow a recalibration without rerunning."""
     from sgdr.discrepancy.candidates import CANDIDATES
     from sgdr.discrepancy.config import MIN_GAIN_BY_CANDIDATE, DiagnoseConfig
-    from sgdr.discrepancy.run import decide
+    from sgdr.discrepancy.run import decide, tell_apart
 
     thresholds = thresholds or MIN_GAIN_BY_CANDIDATE
     gains = {n: c["gain"] for n, c in rec["candidates"].items()}
-    best = decide(gains, {n: thresholds.get(n, DiagnoseConfig.min_gain) for n in gains})
+    per = {n: thresholds.get(n, DiagnoseConfig.min_gain) for n in gains}
+    best = tell_apart(decide(gains, per), rec["candidates"], per)
     return "none" if best is None else CANDIDATES.get_named(best).cause
 
 

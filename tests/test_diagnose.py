@@ -176,6 +176,13 @@ def test_drag_is_named_and_the_driver_prints_json(tiny):
     assert last["v0_refit"] is False  # a twin shares the asset's v0: nothing to refit
     assert last["candidates"]["air_drag"]["value"] == pytest.approx(4.0, rel=0.25)
     assert last["candidates"]["air_drag"]["gain"] >= 0.3
+    diag = json.loads((root / "drag" / "diagnosis.json").read_text())
+    ff = diag["free_flight"]  # drag is fitted and judged before the hit frame only
+    assert (
+        diag["candidates"]["air_drag"]["window"] == "free_flight"
+        and diag["candidates"]["ground_plane"]["window"] == "fit"
+    )
+    assert len(ff["frames"]) >= 2 and max(ff["frames"]) < ff["hit_frame"], ff
     res = last["residuals"]  # drag 4/s: the images fall slower than the base model, and drag fits that
     assert res["gravity_ratio_observed"] < res["gravity_ratio_simulated"] - 0.2, res
     assert 2.0 < res["drag_per_s_observed"] < 6.0 and res["drag_per_s_simulated"] < 1.0, res

@@ -279,7 +279,8 @@ def run_diagnosis(cfg) -> dict:
 
 
 def free_flight(seq, asset, measure, dc, seed, fit_views, held_views, fit_frames, score, refit_values) -> dict | None:
-    """The free-flight window's own evaluator: the fit frames before the sequence's hit frame
+    """The free-flight window's own evaluator: every fit frame before the sequence's hit frame
+    (`diagnose.frame_stride` not applied)
     (where gravity and drag act alone: the object falls rigidly, no contact, no stiffness), the
     images at up to `diagnose.free_flight_image_size`, the base the refit base (which the fall
     does not see). None when fewer than 2 such frames: the free-flight candidates then use the
@@ -289,7 +290,7 @@ def free_flight(seq, asset, measure, dc, seed, fit_views, held_views, fit_frames
     from sgdr.discrepancy.candidates import Evaluator
     from sgdr.posterior.rollouts import ROLLOUTS
 
-    frames = fit_frames[fit_frames < int(seq.hit_frame)]
+    frames = np.arange(1, min(int(seq.hit_frame), int(np.max(fit_frames)) + 1))  # every one: few, cheap
     if frames.size < 2:
         log.info("diagnose: %d fit frames before the hit frame %d: no free-flight window", frames.size, seq.hit_frame)
         return None

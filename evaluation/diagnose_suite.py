@@ -206,7 +206,6 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
                 "held_out_loss",
                 "window",
                 "at_null",
-                "fit_window_gain",
             )
         }
         for n, c in diag["candidates"].items()
@@ -267,12 +266,12 @@ def redecide(rec: dict, thresholds: dict | None = None) -> str:
     `diagnose.min_gain_by_candidate`), so that the bars follow a recalibration without rerunning."""
     from sgdr.discrepancy.candidates import CANDIDATES
     from sgdr.discrepancy.config import MIN_GAIN_BY_CANDIDATE, DiagnoseConfig
-    from sgdr.discrepancy.run import decide, tell_apart
+    from sgdr.discrepancy.run import decide
 
     thresholds = thresholds or MIN_GAIN_BY_CANDIDATE
     gains = {n: c["gain"] for n, c in rec["candidates"].items()}
     per = {n: thresholds.get(n, DiagnoseConfig.min_gain) for n in gains}
-    best = tell_apart(decide(gains, per), rec["candidates"], per)
+    best = decide(gains, per)
     return "none" if best is None else CANDIDATES.get_named(best).cause
 
 

@@ -124,27 +124,3 @@ def test_summary_bars(monkeypatch):
     s = S.summary(results)
     assert s["null_none_share"] == 1.0 and s["injected_named_share"] == pytest.approx(1 / 3)
     assert S.redecide(results["c-gravity"]) == "gravity"
-
-
-def test_gravity_and_drag_both_passing_in_free_flight_are_told_apart_by_the_whole_window():
-    from sgdr.discrepancy.run import decide, tell_apart
-
-    th = {"gravity": 0.15, "air_drag": 0.35, "ground_plane": 0.2}
-
-    def cands(g, d, gp, g_whole, d_whole):
-        return {
-            "gravity": {"gain": g, "window": "free_flight", "fit_window_gain": g_whole},
-            "air_drag": {"gain": d, "window": "free_flight", "fit_window_gain": d_whole},
-            "ground_plane": {"gain": gp, "window": "fit"},
-        }
-
-    def named(c):
-        return tell_apart(decide({n: v["gain"] for n, v in c.items()}, th), c, th)
-
-    assert named(cands(0.53, 0.54, 0.1, 0.2, 0.05)) == "gravity"  # drag's larger free-flight gain is overruled
-    assert named(cands(0.53, 0.54, 0.1, 0.05, 0.2)) == "air_drag"
-    assert named(cands(0.53, 0.30, 0.1, 0.05, 0.2)) == "gravity"  # drag below its threshold: no rival
-    assert named(cands(0.20, 0.40, 0.6, 0.5, 0.0)) == "ground_plane"  # a fit-window candidate named: unchanged
-    assert named(cands(0.0, 0.0, 0.1, None, None)) is None
-    # a record without the whole-window gains (older diagnoses) keeps the plain decision
-    assert named(cands(0.53, 0.54, 0.1, None, None)) == "air_drag"

@@ -62,22 +62,6 @@ def decide(gains: dict, thresholds: dict) -> str | None:
     return max(passing, key=lambda n: gains[n]) if passing else None
 
 
-def tell_apart(best: str | None, candidates: dict, thresholds: dict) -> str | None:
-    """When the candidate named is a free-flight one and another free-flight candidate passes its
-    threshold too, the one with the larger gain over the whole fit window (the controls refitted
-    beside it: `fit_window_gain`) is named: gravity and drag both explain a short fall."""
-    if best is None or candidates[best].get("window") != "free_flight":
-        return best
-    rivals = [
-        n
-        for n, c in candidates.items()
-        if c.get("window") == "free_flight" and c["gain"] >= thresholds[n] and c.get("fit_window_gain") is not None
-    ]
-    if len(rivals) < 2 or candidates[best].get("fit_window_gain") is None:
-        return best
-    return max(rivals, key=lambda n: candidates[n]["fit_window_gain"])
-
-
 def _same_sequence(a, b) -> bool:
     try:
         return Path(a).resolve() == Path(b).resolve()
@@ -227,7 +211,6 @@ def run_diagnosis(cfg) -> dict:
         log.info("diagnose: %s = %s, held-out gain %.3f", name, fit.values, gain)
     thresholds = {n: threshold(dc, n) for n in candidates}
     best = decide({n: c["gain"] for n, c in candidates.items()}, thresholds)
-    best = tell_apart(best, candidates, thresholds)
     for name, c in candidates.items():
         c["min_gain"] = thresholds[name]
         c["decision"] = "cause" if name == best else "rejected"
@@ -327,20 +310,6 @@ def judge_in_free_flight(cand, flight, ev, refit_state, ctx, base, floor, dc) ->
     d_future = None
     if ev.obs_future is not None:
         d_future = base["d_future"] if at_null else ev.d(settings, ev.obs_future, repl)
-    # the whole fit window, the controls refitted beside the fitted value: what tells gravity from
-    # drag when both explain the fall (in a few frames of free flight they are nearly one effect)
-    whole = None
-    if dc.rebase and not at_null:
-        saved_ctx, ctx.values = ctx.values, refit_state[2]
-        try:
-            whole = refit_controls(ev, ctx, dc, max(4, int(dc.evaluations) // 2), settings, repl)
-        finally:
-            ctx.values = saved_ctx
-        whole.pop("replacements")
-        d_future = whole["d_future"]
-    whole_gain = None
-    if whole is not None:
-        whole_gain = excess_gain(whole["d_held_out"], base["d_held_out"], floor["held_out"], margin)
     first = cand.params[0].name
     return {
         "cause": cand.cause,
@@ -359,9 +328,8 @@ def judge_in_free_flight(cand, flight, ev, refit_state, ctx, base, floor, dc) ->
         "future_gain": None if d_future is None else excess_gain(d_future, base["d_future"], floor["future"], margin),
         "evaluations": len(fit.evaluated),
         "gain_over_asset_fit": None,
-        "fit_window_gain": whole_gain,  # over the refit base on every fit frame, the controls refitted
-        "controls": None if whole is None else {n: st["values"] for n, st in whole["steps"].items()},
-        "controls_kept": None if whole is None else [n for n, st in whole["steps"].items() if st["kept"]],
+        "controls": None,
+        "controls_kept": None,
         "at_null": at_null,
         "from": "refit",
         "window": "free_flight",

@@ -329,14 +329,16 @@ def markdown(results: dict) -> str:
     for r in ok:
         r["correct"] = r["cause"] == r["expected"]
     names = sorted({n for r in ok for n in r["candidates"]})
-    lines = ["| case | expected | named | " + " | ".join(names) + " |", "|---" * (3 + len(names)) + "|"]
+    lines = ["| case | commit | expected | named | " + " | ".join(names) + " |", "|---" * (4 + len(names)) + "|"]
     for r in ok:
         cells = []
         for n in names:
             c = r["candidates"].get(n)
             cells.append("-" if c is None else f"{c['gain']:.3f} ({c['value']:.3g})")
         mark = "" if r["correct"] else " ✗"
-        lines.append(f"| {r['id']} | {r['expected']} | {r['cause']}{mark} | " + " | ".join(cells) + " |")
+        lines.append(
+            f"| {r['id']} | {r.get('commit', '?')} | {r['expected']} | {r['cause']}{mark} | " + " | ".join(cells) + " |"
+        )
     return "\n".join(lines)
 
 

@@ -271,7 +271,8 @@ def redecide(rec: dict, thresholds: dict | None = None) -> str:
     thresholds = thresholds or MIN_GAIN_BY_CANDIDATE
     gains = {n: c["gain"] for n, c in rec["candidates"].items()}
     per = {n: thresholds.get(n, DiagnoseConfig.min_gain) for n in gains}
-    best = decide(gains, per)
+    free = [n for n, c in rec["candidates"].items() if c.get("window") == "free_flight"]
+    best = decide(gains, per, free)
     return "none" if best is None else CANDIDATES.get_named(best).cause
 
 

@@ -124,3 +124,15 @@ def test_summary_bars(monkeypatch):
     s = S.summary(results)
     assert s["null_none_share"] == 1.0 and s["injected_named_share"] == pytest.approx(1 / 3)
     assert S.redecide(results["c-gravity"]) == "gravity"
+
+
+def test_a_free_flight_cause_comes_before_a_contact_borne_one():
+    from sgdr.discrepancy.run import decide
+
+    th = {"gravity": 0.15, "air_drag": 0.35, "ground_plane": 0.2}
+    free = ["gravity", "air_drag"]
+    # the apple with drag 2 /s: the ground's whole-window gain is larger, drag passes in free flight
+    assert decide({"gravity": 0.41, "air_drag": 0.42, "ground_plane": 0.51}, th, free) == "air_drag"
+    assert decide({"gravity": 0.41, "air_drag": 0.42, "ground_plane": 0.51}, th) == "ground_plane"  # no priority
+    assert decide({"gravity": 0.10, "air_drag": 0.30, "ground_plane": 0.51}, th, free) == "ground_plane"  # none passes
+    assert decide({"gravity": 0.0, "air_drag": 0.0, "ground_plane": 0.1}, th, free) is None

@@ -93,14 +93,16 @@ def score_run(run_dir: Path, threads: int = 0) -> dict:
     out = {"run": str(run_dir), "cause": diag["cause"], "refit_values": kept}
     out["asset"] = future_scores({}, {})
     ctx = context()
-    out["refit"] = future_scores({**_replacements(ctx, kept), **_replacements(ctx, second)}, {})
+    refit = {**_replacements(ctx, kept), **_replacements(ctx, second)}
+    out["refit"] = future_scores(refit, {})
     cands = dict(diag["candidates"])
     if cands:
         best = max(cands, key=lambda n: cands[n]["gain"])
         c = cands[best]
         ctx = context()
         # a candidate fitted again from the refit base (diagnosis.json "from") starts from its values
-        first = {**_replacements(ctx, kept), **_replacements(ctx, second)} if c.get("from") == "refit" else {}
+        first = refit if c.get("from") == "refit" else {}
+        ctx.values = {**ctx.values, **first}
         settings, repl = CANDIDATES.get_named(best, "diagnose.candidates").apply(ctx, c["values"], c["variant"])
         ctx.values = {**ctx.values, **repl}
         repl = {**first, **repl}

@@ -63,7 +63,8 @@ def decide(gains: dict, thresholds: dict, first=()) -> str | None:
     window (the MPM apple with drag 2 /s: a ground raised 5% of its size gained 0.51, drag 0.42 in
     free flight); nothing that acts at contact changes the free flight."""
     passing = [n for n, g in gains.items() if g is not None and np.isfinite(g) and g >= thresholds[n]]
-    early = [n for n in passing if n in set(first)]
+    first = set(first)
+    early = [n for n in passing if n in first]
     return max(early or passing, key=lambda n: gains[n]) if passing else None
 
 
@@ -185,35 +186,19 @@ def run_diagnosis(cfg) -> dict:
         at_null = bool(fit.d_fit > base["d_fit"])
         if at_null:
             fit = replace(fit, d_fit=base["d_fit"], d_held_out=base["d_held_out"], d_future=base["d_future"])
-        gain = excess_gain(fit.d_held_out, base["d_held_out"], floor["held_out"], margin)
-        future_gain = (
-            excess_gain(fit.d_future, base["d_future"], floor["future"], margin) if fit.d_future is not None else None
+        candidates[name] = candidate_record(
+            cand,
+            fit,
+            (base["d_held_out"], floor["held_out"]),
+            (base["d_future"], floor["future"]),
+            margin,
+            joint,
+            gain_over_asset_fit=excess_gain(d_alone, asset_fit["d_held_out"], floor["held_out"], margin),
+            at_null=at_null,
+            window="fit",
         )
-        first = cand.params[0].name
-        candidates[name] = {
-            "cause": cand.cause,
-            "changes": cand.describes,
-            "value": fit.values[first],
-            "interval": list(fit.interval[first]),
-            "values": fit.values,
-            "intervals": {k: list(v) for k, v in fit.interval.items()},
-            "variant": fit.variant,
-            "settings": {f"physics.{k}": v for k, v in fit.settings.items()},
-            "fit_loss": fit.d_fit,
-            "held_out_loss": fit.d_held_out,
-            "gain": gain,
-            "relative_gain": 1.0 - fit.d_held_out / base["d_held_out"],
-            "future_loss": fit.d_future,
-            "future_gain": future_gain,
-            "evaluations": len(fit.evaluated),
-            "gain_over_asset_fit": excess_gain(d_alone, asset_fit["d_held_out"], floor["held_out"], margin),
-            "controls": None if joint is None else {n: st["values"] for n, st in joint["steps"].items()},
-            "controls_kept": None if joint is None else [n for n, st in joint["steps"].items() if st["kept"]],
-            "at_null": at_null,
-            "from": start,
-            "window": "fit",
-        }
-        log.info("diagnose: %s = %s, held-out gain %.3f", name, fit.values, gain)
+        candidates[name]["from"] = start
+        log.info("diagnose: %s = %s, held-out gain %.3f", name, fit.values, candidates[name]["gain"])
     thresholds = {n: threshold(dc, n) for n in candidates}
     free = [n for n, c in candidates.items() if c["window"] == "free_flight"]
     best = decide({n: c["gain"] for n, c in candidates.items()}, thresholds, free)
@@ -269,8 +254,8 @@ def run_diagnosis(cfg) -> dict:
 
 def free_flight(seq, asset, measure, dc, seed, fit_views, held_views, fit_frames, score, refit_values) -> dict | None:
     """The free-flight window's own evaluator: every fit frame before the sequence's hit frame
-    (`diagnose.frame_stride` not applied)
-    (where gravity and drag act alone: the object falls rigidly, no contact, no stiffness), the
+    (`diagnose.frame_stride` not applied), where gravity and drag act alone (the object falls
+    rigidly: no contact, no stiffness); the
     images at up to `diagnose.free_flight_image_size`, the base the refit base (which the fall
     does not see). None when fewer than 2 such frames: the free-flight candidates then use the
     whole fit window like the rest."""
@@ -309,14 +294,26 @@ def judge_in_free_flight(cand, flight, ev, refit_state, ctx, base, floor, dc) ->
         settings, repl = cand.apply(ctx, fit.values, fit.variant)
     finally:
         ctx.values = saved_ctx
-    fb, margin = flight["base"], float(dc.floor_margin)
+    fb = flight["base"]
     at_null = bool(fit.d_fit > fb["d_fit"])
-    d_held = fb["d_held_out"] if at_null else fit.d_held_out
     ev.reset(refit_state[0], refit_state[1])
     d_future = None
     if ev.obs_future is not None:
         d_future = base["d_future"] if at_null else ev.d(settings, ev.obs_future, repl)
+    if at_null:
+        fit = replace(fit, d_fit=fb["d_fit"], d_held_out=fb["d_held_out"])
+    fit = replace(fit, d_future=d_future)
+    held, future = (fb["d_held_out"], flight["floor"]), (base["d_future"], floor["future"])
+    record = candidate_record(cand, fit, held, future, float(dc.floor_margin), None, gain_over_asset_fit=None)
+    return {**record, "at_null": at_null, "from": "refit", "window": "free_flight"}
+
+
+def candidate_record(cand, fit, held: tuple, future: tuple, margin: float, joint: dict | None, **extra) -> dict:
+    """diagnosis.json's entry for a fitted candidate: its values and intervals, its losses (those of
+    `fit`, already final), its gains over the base; held / future: (the base's D, the floor) on the
+    held-out views and the future frames; joint: the controls refitted beside it (None: none)."""
     first = cand.params[0].name
+    d_future = fit.d_future
     return {
         "cause": cand.cause,
         "changes": cand.describes,
@@ -326,19 +323,16 @@ def judge_in_free_flight(cand, flight, ev, refit_state, ctx, base, floor, dc) ->
         "intervals": {k: list(v) for k, v in fit.interval.items()},
         "variant": fit.variant,
         "settings": {f"physics.{k}": v for k, v in fit.settings.items()},
-        "fit_loss": fb["d_fit"] if at_null else fit.d_fit,
-        "held_out_loss": d_held,
-        "gain": excess_gain(d_held, fb["d_held_out"], flight["floor"], margin),
-        "relative_gain": 1.0 - d_held / fb["d_held_out"],
+        "fit_loss": fit.d_fit,
+        "held_out_loss": fit.d_held_out,
+        "gain": excess_gain(fit.d_held_out, held[0], held[1], margin),
+        "relative_gain": 1.0 - fit.d_held_out / held[0],
         "future_loss": d_future,
-        "future_gain": None if d_future is None else excess_gain(d_future, base["d_future"], floor["future"], margin),
+        "future_gain": None if d_future is None else excess_gain(d_future, future[0], future[1], margin),
         "evaluations": len(fit.evaluated),
-        "gain_over_asset_fit": None,
-        "controls": None,
-        "controls_kept": None,
-        "at_null": at_null,
-        "from": "refit",
-        "window": "free_flight",
+        "controls": None if joint is None else {n: st["values"] for n, st in joint["steps"].items()},
+        "controls_kept": None if joint is None else [n for n, st in joint["steps"].items() if st["kept"]],
+        **extra,
     }
 
 

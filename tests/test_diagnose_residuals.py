@@ -231,3 +231,17 @@ def test_record_is_strict_json_and_the_plots_are_written(tmp_path, n_views, n_fr
                  "discrepancy": {"measure": "points", "unit": "pixels²"}}  # fmt: skip
     html = section(diagnosis, record, {k: str(v) for k, v in plots.items()}).body
     assert "data:image/png;base64," in html and "Model discrepancy" not in html  # the title is the report's
+
+
+def test_first_touch_is_the_first_frame_a_point_reaches_the_ground():
+    from sgdr.discrepancy.run import first_touch
+
+    t = np.arange(12) / FPS
+    z = 0.5 - fall(t, 0.0, 0.0, 9.8, 0.0)  # the lowest point's height over a ground at z = 0
+    cube = np.array([[0, 0, 0], [0.2, 0, 0], [0, 0.2, 0], [0, 0, 0.2]], float)
+    pos = cube[None] + np.stack([np.zeros(12), np.zeros(12), np.maximum(z, 0.0)], axis=1)[:, None]
+    expected = int(np.flatnonzero(z <= 0)[0])
+    assert first_touch(pos, [0, 0, 0], [0, 0, 1]) == expected
+    assert first_touch(pos, [0, 0, -0.3], [0, 0, 2]) is None  # a lower ground: not reached here
+    assert first_touch(None, [0, 0, 0], [0, 0, 1]) is None  # an unstable rollout
+    assert first_touch(pos[:1].repeat(3, 0) * 0, [0, 0, 0], [0, 0, 1]) == 1  # resting from the start: no free flight

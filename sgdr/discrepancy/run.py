@@ -269,15 +269,43 @@ def free_flight(seq, asset, measure, dc, seed, fit_views, held_views, fit_frames
         log.info("diagnose: %d fit frames before the hit frame %d: no free-flight window", frames.size, seq.hit_frame)
         return None
     fdc = dc_replace(dc, max_image_size=int(dc.free_flight_image_size))
-    obs_fit = measure.observe(seq, fit_views, frames, fdc, seed)
-    obs_held = measure.observe(seq, held_views, frames, fdc, seed)
-    ev = Evaluator(asset, ROLLOUTS.get_named("loop"), obs_fit, obs_held, None, score)
-    ev.rebase(refit_values)
+
+    def evaluator(frames):
+        obs_fit = measure.observe(seq, fit_views, frames, fdc, seed)
+        obs_held = measure.observe(seq, held_views, frames, fdc, seed)
+        ev = Evaluator(asset, ROLLOUTS.get_named("loop"), obs_fit, obs_held, None, score)
+        ev.rebase(refit_values)
+        return ev, obs_fit, obs_held
+
+    ev, obs_fit, obs_held = evaluator(frames)
+    # the base touches the recorded ground before the sequence's hit frame when the true ground is
+    # lower (or the fall longer) than the model's: those frames are contact for the model, not free
+    # flight, and would let gravity or drag stand in for the ground
+    base_hit = first_touch(ev.positions({}), asset.ground_point, asset.ground_normal)
+    if base_hit is not None and base_hit < frames[-1] + 1:
+        frames = frames[frames < base_hit]
+        log.info("diagnose: the base touches the ground at frame %d, before the hit frame %d", base_hit, seq.hit_frame)
+        if frames.size < 2:
+            log.info("diagnose: %d free-flight frames before the base's contact: no free-flight window", frames.size)
+            return None
+        ev, obs_fit, obs_held = evaluator(frames)
     zero = measure.observe(seq, held_views, np.array([0]), fdc, seed)
     floor = float(frames.size * np.sum(score(zero, ev.positions({}))))
     base = {"d_fit": ev.d({}, obs_fit), "d_held_out": ev.d({}, obs_held), "floor_held_out": floor}
-    record = {"frames": frames.tolist(), "hit_frame": int(seq.hit_frame), "base": base}
+    record = {"frames": frames.tolist(), "hit_frame": int(seq.hit_frame), "base_hit_frame": base_hit, "base": base}
     return {"ev": ev, "base": base, "floor": floor, "record": record}
+
+
+def first_touch(positions, ground_point, ground_normal) -> int | None:
+    """The first frame after frame 0 in which a point of `positions` [T, N, 3] is within 1e-3 of
+    the object's extent of the ground plane; None when none is (or the rollout is unstable)."""
+    if positions is None:
+        return None
+    n = np.asarray(ground_normal, float) / np.linalg.norm(ground_normal)
+    heights = (np.asarray(positions, float) - np.asarray(ground_point, float)) @ n  # [T, N]
+    tol = 1e-3 * float(np.ptp(positions[0], axis=0).max())
+    touching = np.flatnonzero(heights[1:].min(axis=1) <= tol) + 1
+    return int(touching[0]) if touching.size else None
 
 
 def judge_in_free_flight(cand, flight, ev, refit_state, ctx, base, floor, dc) -> dict:

@@ -80,7 +80,10 @@ def plot_ranks(summary: dict, path: Path) -> Path:
     return path
 
 
-def calibrate(cfg, n_cases: int, out: Path, progress: bool = True) -> dict:
+def calibrate(cfg, n_cases: int, out: Path, progress: bool = True, twin_scale: int = 1) -> dict:
+    """`n_cases` twins of `posterior.run`'s asset, each rendered `twin_scale` times finer than its
+    cameras, and their posteriors; resumable (cases in `<out>/calibration.json` are kept, and a
+    file written with another `twin_scale` or sampler is refused)."""
     from dataclasses import replace
 
     from sgdr.posterior.run import run_posterior
@@ -88,8 +91,18 @@ def calibrate(cfg, n_cases: int, out: Path, progress: bool = True) -> dict:
 
     out.mkdir(parents=True, exist_ok=True)
     record_file = out / "calibration.json"
-    record = json.loads(record_file.read_text()) if record_file.exists() else {"cases": []}
     pc = cfg.posterior
+    setup = {
+        "twin_scale": int(twin_scale),
+        "moves": pc.moves,
+        "n_steps": int(pc.n_steps),
+        "n_walkers": int(pc.n_walkers),
+    }
+    record = json.loads(record_file.read_text()) if record_file.exists() else {"cases": [], "setup": setup}
+    if record.setdefault("setup", setup) != setup:
+        raise SystemExit(
+            f"error: {record_file} was written with {record['setup']}, not {setup}: use another +out= or remove it"
+        )
     names = list(pc.parameters)
     done = {c["case"] for c in record["cases"]}
     asset_dir = Path(pc.run) / "asset"
@@ -97,7 +110,9 @@ def calibrate(cfg, n_cases: int, out: Path, progress: bool = True) -> dict:
         if case in done:
             continue
         truth = draw_truth(pc.priors, names, case)
-        twin = twin_sequence(asset_dir, out / f"case_{case:03d}" / "twin", truth, cfg.render)
+        twin = twin_sequence(
+            asset_dir, out / f"case_{case:03d}" / "twin", truth, cfg.render, image_scale=int(twin_scale)
+        )
         case_cfg = replace(
             cfg,
             tracking=replace(cfg.tracking, enabled=False),
@@ -117,6 +132,9 @@ def calibrate(cfg, n_cases: int, out: Path, progress: bool = True) -> dict:
                 "inside": {n: bool(diag["q05"][n] <= truth[n] <= diag["q95"][n]) for n in names},
                 "rank": {n: sbc_rank(kept[:, i], truth[n]) for i, n in enumerate(names)},
                 "converged": bool(res["converged"]),
+                "failed": res["failed"],
+                "tau_max": diag.get("tau_max"),
+                "rhat_max": max((v for v in diag["rhat"].values() if v is not None), default=None),
                 "seconds": res["cost"]["seconds"],
             }
         )
@@ -128,6 +146,9 @@ def calibrate(cfg, n_cases: int, out: Path, progress: bool = True) -> dict:
                 f"case {case}: {inside}/{len(names)} truths inside their 90% interval, {c['seconds']:.0f} s", flush=True
             )
     record["summary"] = summarise(record["cases"], names)
+    converged = [c for c in record["cases"] if c["converged"]]
+    record["converged_cases"] = len(converged)
+    record["summary_converged"] = summarise(converged, names)
     record["parameters"] = names
     record_file.write_text(json.dumps(record, indent=1))
     plot_ranks(record["summary"], out / "ranks.png")
@@ -148,13 +169,11 @@ def main(argv: list[str]) -> None:
         validate(cfg)
         sgdr.backend.init(cfg.backend, cfg.threads or None)
         out = Path(extra.get("out", "results/calibration"))
-        record = calibrate(cfg, int(extra.get("cases", 20)), out)
+        record = calibrate(cfg, int(extra.get("cases", 20)), out, twin_scale=int(extra.get("twin_scale", 1)))
     summary = {n: s["coverage_90"] for n, s in record["summary"].items()}
-    print(
-        json.dumps(
-            {"calibration": str(out / "calibration.json"), "cases": len(record["cases"]), "coverage_90": summary}
-        )
-    )
+    conv = {n: s["coverage_90"] for n, s in record["summary_converged"].items()}
+    line = {"calibration": str(out / "calibration.json"), "cases": len(record["cases"]), "coverage_90": summary}
+    print(json.dumps({**line, "converged_cases": record["converged_cases"], "coverage_90_converged": conv}))
 
 
 if __name__ == "__main__":

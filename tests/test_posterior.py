@@ -72,6 +72,62 @@ def test_verdict_names_each_failed_criterion():
     assert any("never moved" in f and "ensemble 2" in f for f in d["failed"]), d["failed"]
 
 
+def test_de_moves_sample_a_correlated_gaussian_and_converge():
+    """posterior.moves=de on a known target inside a box prior: the verdict's criteria hold and the
+    5-95% interval is the Gaussian's."""
+    from sgdr.posterior.sample import Problem, run_ensembles
+
+    cov = np.array([[1.0, 0.9], [0.9, 1.0]])
+    prec = np.linalg.inv(cov)
+    problem = Problem(["a", "b"], np.array([-8.0, -8.0]), np.array([8.0, 8.0]), np.array([0.5, -0.5]))
+
+    def log_prob(thetas):
+        lp = -0.5 * np.einsum("sd,de,se->s", thetas, prec, thetas)
+        return np.where(problem.inside(thetas), lp, -np.inf)
+
+    chains, _, acc = run_ensembles(log_prob, problem, 12, 1500, 4, init_ball=0.1, seed=3, move="de")
+    d = diagnose(chains, problem.names, _post_cfg(), acc)
+    assert d["converged"], d["failed"]
+    for n in problem.names:
+        assert d["q05"][n] == pytest.approx(-1.645, abs=0.2) and d["q95"][n] == pytest.approx(1.645, abs=0.2)
+
+
+def test_logit_space_samples_the_box_prior_itself():
+    """posterior.space=logit on a flat likelihood: the chains (returned in θ) are the uniform prior,
+    which needs the Jacobian (without it the walkers drift to the edges)."""
+    from sgdr.posterior.sample import LogitSpace, Problem, run_ensembles
+
+    problem = Problem(["a", "b"], np.array([0.0, -2.0]), np.array([1.0, 2.0]), np.array([0.0, 1.0]))
+    flat = lambda thetas: np.where(problem.inside(np.atleast_2d(thetas)), 0.0, -np.inf)  # noqa: E731
+    chains, lps, acc = run_ensembles(flat, problem, 12, 1500, 4, init_ball=0.05, seed=5, move="de", space="logit")
+    assert np.all(problem.inside(chains.reshape(-1, 2))) and np.all(lps == 0.0)
+    d = diagnose(chains, problem.names, _post_cfg(), acc)
+    assert d["converged"], d["failed"]
+    assert d["q05"]["a"] == pytest.approx(0.05, abs=0.03) and d["q95"]["a"] == pytest.approx(0.95, abs=0.03)
+    assert d["q05"]["b"] == pytest.approx(-1.8, abs=0.12) and d["median"]["b"] == pytest.approx(0.0, abs=0.12)
+    space = LogitSpace(problem)
+    theta = np.array([[0.3, -1.0], [0.9, 1.5]])
+    np.testing.assert_allclose(space.to_theta(space.to_z(theta)), theta)
+
+
+def test_an_upscaled_camera_sees_the_same_view_finer():
+    from sgdr.cameras import Camera
+    from sgdr.discrepancy.measures import downscaled
+    from sgdr.posterior.twin import upscaled
+
+    cam = Camera.look_at([2.0, 0.5, 1.0], [0.0, 0.0, 0.3], [0, 0, 1], 40.0, 32, 24, "v")
+    big = upscaled(cam, 3)
+    assert (big.width, big.height) == (96, 72) and big.name == "v"
+    pts = np.array([[0.0, 0.0, 0.3], [0.1, -0.2, 0.5]])
+    uv, z = cam.project(pts)
+    uv3, z3 = big.project(pts)
+    np.testing.assert_allclose(uv3, 3 * uv, atol=1e-9)  # pixel coordinates scale, depth does not
+    np.testing.assert_allclose(z3, z)
+    np.testing.assert_allclose(downscaled(big, 3).K, cam.K)
+    with pytest.raises(ValueError, match="image_scale"):
+        upscaled(cam, 0)
+
+
 def test_silhouette_discrepancy_on_a_synthetic_view():
     """Points filling a square silhouette score ~0; points shifted right score the outside term
     (their squared distance to the square) plus the uncovered strip; a cluster in one corner

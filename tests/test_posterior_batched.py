@@ -105,6 +105,36 @@ def test_blow_up_past_a_lenient_bound_is_flagged_by_finiteness():
         np.testing.assert_allclose(out.positions[s], single(model, base, cfg, values, s), atol=1e-5 * SIZE, rtol=0)
 
 
+def test_frozen_frames_replay_what_the_traced_substeps_compute():
+    """The frozen per-frame stepper (the default) against tracing every substep: the first call
+    of a width records, the next ones replay the kernels with other parameters, another model of
+    the same size and another physics setting (a new recording), all equal to the traced rollouts."""
+    from sgdr.posterior.batched import _frozen_frame
+
+    before, frames = _frozen_frame.n_recordings, 0
+    variants = (("directed", "project", {}), ("directed", "project", {}), ("symmetric", "coulomb", {"air_drag": 0.5}))
+    for springs, contact, extra in variants:
+        cfg, model, base = asset(springs, contact, **extra)
+        for scale in (1.0, 0.5):
+            values = samples(3)
+            values["dlog10_k"] *= scale
+            values["friction"] *= scale
+            frozen = batched_rollout(model, base, values, GROUND, N_FRAMES, DT, N_SUB, cfg)
+            traced = batched_rollout(model, base, values, GROUND, N_FRAMES, DT, N_SUB, cfg, freeze=False)
+            np.testing.assert_allclose(frozen.positions, traced.positions, atol=1e-6 * SIZE, rtol=0)
+            frames += N_FRAMES - 1
+    assert 1 <= _frozen_frame.n_recordings - before < frames
+    # once a model's layout is recorded (its first frame and the rest, literals made opaque), a
+    # call with other sample values only replays (the last variant's model, called twice above)
+    before = _frozen_frame.n_recordings
+    values = samples(3)
+    values["kappa"] *= -1.0
+    frozen = batched_rollout(model, base, values, GROUND, N_FRAMES, DT, N_SUB, cfg)
+    assert _frozen_frame.n_recordings == before
+    traced = batched_rollout(model, base, values, GROUND, N_FRAMES, DT, N_SUB, cfg, freeze=False)
+    np.testing.assert_allclose(frozen.positions, traced.positions, atol=1e-6 * SIZE, rtol=0)
+
+
 def test_single_sample_with_base_values():
     cfg, model, base = asset("symmetric", "project")
     values = {"friction": np.array([0.4])}  # everything else from the base parameters

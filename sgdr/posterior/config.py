@@ -47,6 +47,12 @@ class PosteriorConfig:
     n_steps: int = 400  # steps per ensemble
     n_ensembles: int = 4  # independent ensembles (R-hat and ESS across them)
     init_ball: float = 0.05  # walkers start MAP + init_ball x prior width x N(0, 1)
+    # emcee's proposal (sgdr.posterior.sample.MOVES): "stretch" (Goodman & Weare, emcee's default) or
+    # "de" (differential evolution 0.8 + its snooker variant 0.2, ter Braak & Vrugt 2008)
+    moves: str = "stretch"
+    # where the walkers move: "box" (θ, the prior's edges reject) or "logit" (each θ mapped from its
+    # prior box onto the real line, sgdr.posterior.sample.LogitSpace)
+    space: str = "box"
     # convergence criteria
     tau_factor: float = 50.0  # chains must be >= tau_factor x the integrated autocorrelation time
     rhat_max: float = 1.01  # rank-normalised split R-hat across ensembles, every parameter
@@ -75,6 +81,8 @@ CHECKS: dict[str, Check] = {
     "n_steps": at_least(2),
     "n_ensembles": at_least(2, "R-hat needs several independent ensembles; the issue asks for >= 4"),
     "init_ball": between(0.0, 0.5, lo_open=True),
+    "moves": choice(("stretch", "de")),
+    "space": choice(("box", "logit")),
     "tau_factor": positive(),
     "rhat_max": at_least(1.0),
     "ess_min": positive(),

@@ -123,7 +123,16 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
         len(views), len(fit_frames), np.sqrt(likelihood.sigma2), problem.names, pc.n_ensembles, pc.n_walkers, pc.n_steps,
     )  # fmt: skip
     chains, log_probs, acceptance = run_ensembles(
-        log_prob, problem, pc.n_walkers, pc.n_steps, pc.n_ensembles, pc.init_ball, seed=cfg.seed, progress=progress
+        log_prob,
+        problem,
+        pc.n_walkers,
+        pc.n_steps,
+        pc.n_ensembles,
+        pc.init_ball,
+        seed=cfg.seed,
+        progress=progress,
+        move=pc.moves,
+        space=pc.space,
     )
     sample_seconds = time.time() - t0
     diag = diagnose(chains, problem.names, pc, acceptance)

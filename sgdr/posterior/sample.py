@@ -123,16 +123,74 @@ def initial_walkers(problem: Problem, n_walkers: int, init_ball: float, rng) -> 
     return np.clip(p0, problem.low + 1e-3 * width, problem.high - 1e-3 * width)
 
 
-def run_ensembles(log_prob, problem: Problem, n_walkers, n_steps, n_ensembles, init_ball, seed=0, progress=False):
-    """(chains [E, steps, W, D], log_probs [E, steps, W], acceptance [E, W]) from `n_ensembles`
-    independent emcee ensembles, seeds seed, seed+1, ..."""
+def moves(name: str):
+    """emcee's proposal for `posterior.moves`: None (emcee's stretch move) or a weighted mixture."""
     import emcee
+
+    if name == "stretch":
+        return None
+    if name == "de":
+        return [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
+    raise ValueError(f"posterior.moves={name!r}: expected 'stretch' or 'de'")
+
+
+class LogitSpace:
+    """The box prior's interior mapped onto R^D: z = logit((θ - low) / (high - low)). A uniform
+    prior in θ is the logistic density in z (the Jacobian), smooth and without walls, which
+    the ensemble moves cross far faster than a box whose edges reject every proposal beyond them
+    (Stan maps bounded parameters the same way). Chains are returned in θ."""
+
+    def __init__(self, problem: Problem):
+        self.low, self.width = problem.low, problem.high - problem.low
+
+    def to_theta(self, z: np.ndarray) -> np.ndarray:
+        from scipy.special import expit
+
+        return self.low + self.width * expit(z)
+
+    def to_z(self, theta: np.ndarray) -> np.ndarray:
+        from scipy.special import logit
+
+        return logit((np.asarray(theta, float) - self.low) / self.width)
+
+    def log_jacobian(self, z: np.ndarray) -> np.ndarray:
+        """log |dθ/dz| summed over the parameters, [S]."""
+        z = np.atleast_2d(z)
+        return np.sum(np.log(self.width) - np.logaddexp(0.0, z) - np.logaddexp(0.0, -z), axis=1)
+
+    def log_prob(self, log_prob):
+        return lambda z: log_prob(self.to_theta(np.atleast_2d(z))) + self.log_jacobian(z)
+
+
+def run_ensembles(
+    log_prob,
+    problem: Problem,
+    n_walkers,
+    n_steps,
+    n_ensembles,
+    init_ball,
+    seed=0,
+    progress=False,
+    move="stretch",
+    space="box",
+):
+    """(chains [E, steps, W, D], log_probs [E, steps, W], acceptance [E, W]) from `n_ensembles`
+    independent emcee ensembles, seeds seed, seed+1, ...; move: `posterior.moves`; space:
+    `posterior.space` ("box": θ itself; "logit": `LogitSpace`, chains and log p returned in θ)."""
+    import emcee
+
+    if space not in ("box", "logit"):
+        raise ValueError(f"posterior.space={space!r}: expected 'box' or 'logit'")
+    mapped = LogitSpace(problem) if space == "logit" else None
+    target = mapped.log_prob(log_prob) if mapped else log_prob
 
     chains, lps, acc = [], [], []
     for e in range(int(n_ensembles)):
         rng = np.random.default_rng(int(seed) * 1000 + e)
         p0 = initial_walkers(problem, int(n_walkers), float(init_ball), rng)
-        sampler = emcee.EnsembleSampler(int(n_walkers), len(problem.names), log_prob, vectorize=True)
+        if mapped:
+            p0 = mapped.to_z(p0)
+        sampler = emcee.EnsembleSampler(int(n_walkers), len(problem.names), target, vectorize=True, moves=moves(move))
         sampler.random_state = np.random.RandomState(int(seed) * 1000 + e).get_state()
         if progress:
             from tqdm import tqdm
@@ -143,8 +201,12 @@ def run_ensembles(log_prob, problem: Problem, n_walkers, n_steps, n_ensembles, i
             bar.close()
         else:
             sampler.run_mcmc(p0, int(n_steps))
-        chains.append(sampler.get_chain())
-        lps.append(sampler.get_log_prob())
+        chain, lp = sampler.get_chain(), sampler.get_log_prob()
+        if mapped:
+            lp = lp - mapped.log_jacobian(chain.reshape(-1, chain.shape[-1])).reshape(lp.shape)
+            chain = mapped.to_theta(chain)
+        chains.append(chain)
+        lps.append(lp)
         acc.append(sampler.acceptance_fraction)
     return np.stack(chains), np.stack(lps), np.stack(acc)
 

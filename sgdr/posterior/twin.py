@@ -52,6 +52,20 @@ def hit_frame(anchors: np.ndarray, ground_point, ground_normal, tol: float | Non
     return int(max(touching[0], 1)) if touching.size else int(anchors.shape[0] - 1)
 
 
+def upscaled(camera, s: int):
+    """The camera whose pixels are s x s sub-pixels of `camera`'s (intrinsics x s, size x s): the
+    same view, rendered s times finer (the inverse of `sgdr.discrepancy.measures.downscaled`)."""
+    from sgdr.cameras import Camera
+
+    if s < 1:
+        raise ValueError(f"image_scale={s}: must be a positive integer")
+    if s == 1:
+        return camera
+    K = np.array(camera.K, float)
+    K[:2] *= s
+    return Camera(K, camera.R, camera.t, camera.width * s, camera.height * s, camera.name)
+
+
 def twin_sequence(
     asset_dir,
     out,
@@ -60,6 +74,7 @@ def twin_sequence(
     progress: bool = False,
     physics: dict | None = None,
     fields: dict | None = None,
+    image_scale: int = 1,
 ) -> Path:
     """Simulate the asset in `asset_dir` with `truth`, render every camera and frame, write an
     sgdr-layout sequence to `out`; returns `out`. render_cfg: `RenderConfig` (default: its
@@ -68,7 +83,8 @@ def twin_sequence(
     changes the truth but not what the sequence records (its gravity and ground stay the
     asset's; the effect is in gt/effects.json). fields: identified values replaced outright, e.g.
     {"log10_k": [N_A]} for a stiffness field of another shape (a heterogeneity injected into
-    the twin; recorded in gt/effects.json)."""
+    the twin; recorded in gt/effects.json). image_scale: the twin's images s times finer than the
+    asset's cameras (`upscaled`; a likelihood that sees more, e.g. a tiny asset's calibration)."""
     from dataclasses import replace
 
     from sgdr.data import write_sequence
@@ -86,6 +102,7 @@ def twin_sequence(
                 f"twin fields: {key!r} must replace an identified value of shape {np.shape(values.get(key))}"
             )
         values[key] = np.asarray(value, float)
+    cameras = [upscaled(c, int(image_scale)) for c in asset.cameras]
     model, binding = asset.build()
     params = physical_params(model, asset.physics, values)
     ground = Ground(asset.ground_point, asset.ground_normal)
@@ -99,7 +116,7 @@ def twin_sequence(
         asset.fps,
         asset.n_substeps,
         true_physics,
-        asset.cameras,
+        cameras,
         render_cfg or RenderConfig(),
         True,
         progress,
@@ -108,7 +125,7 @@ def twin_sequence(
     plain = {k: (np.asarray(v).tolist() if np.ndim(v) else float(v)) for k, v in values.items()}
     return write_sequence(
         out,
-        cameras=asset.cameras,
+        cameras=cameras,
         images=images,
         fps=asset.fps,
         n_fit=asset.n_fit,

@@ -47,12 +47,12 @@ class PosteriorConfig:
     n_steps: int = 400  # steps per ensemble
     n_ensembles: int = 4  # independent ensembles (R-hat and ESS across them)
     init_ball: float = 0.05  # walkers start MAP + init_ball x prior width x N(0, 1)
-    # emcee's proposal (sgdr.posterior.sample.MOVES): "stretch" (Goodman & Weare, emcee's default) or
-    # "de" (differential evolution 0.8 + its snooker variant 0.2, ter Braak & Vrugt 2008)
-    moves: str = "stretch"
+    # emcee's proposal (sgdr.posterior.sample.moves): "stretch" (Goodman & Weare, emcee's default) or
+    # "de" (differential evolution, ter Braak 2006)
+    moves: str = "de"
     # where the walkers move: "box" (θ, the prior's edges reject) or "logit" (each θ mapped from its
     # prior box onto the real line, sgdr.posterior.sample.LogitSpace)
-    space: str = "box"
+    space: str = "logit"
     # convergence criteria
     tau_factor: float = 50.0  # chains must be >= tau_factor x the integrated autocorrelation time
     rhat_max: float = 1.01  # rank-normalised split R-hat across ensembles, every parameter

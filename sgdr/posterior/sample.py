@@ -124,13 +124,17 @@ def initial_walkers(problem: Problem, n_walkers: int, init_ball: float, rng) -> 
 
 
 def moves(name: str):
-    """emcee's proposal for `posterior.moves`: None (emcee's stretch move) or a weighted mixture."""
+    """emcee's proposal for `posterior.moves`: None (emcee's stretch move) or the DE move."""
     import emcee
 
     if name == "stretch":
         return None
     if name == "de":
-        return [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
+        # differential evolution alone (ter Braak 2006): it updates half the ensemble per call,
+        # always the same batch width, which the frozen rollouts replay; emcee's snooker variant
+        # splits the ensemble in four (widths alternating 3 and 2 at 10 walkers), which made them
+        # record again on every call
+        return emcee.moves.DEMove()
     raise ValueError(f"posterior.moves={name!r}: expected 'stretch' or 'de'")
 
 

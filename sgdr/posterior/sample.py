@@ -10,7 +10,10 @@ or `sgdr.posterior.rollouts.loop_rollout`), its centres are compared with the si
 
 Independent ensembles. `run_ensembles` runs `posterior.n_ensembles` (>= 4 asked by the issue)
 ensembles, each with its own seed and its own walkers started in a small ball around the MAP
-(the run's identified parameters, shift 0), clipped into the prior.
+(the run's identified parameters, shift 0), clipped into the prior. The walkers move with
+`posterior.moves` (default: differential evolution) in `posterior.space` (default: logit, each
+parameter mapped from its prior box onto the real line, `LogitSpace`); docs/posterior.md gives
+the measurements behind both defaults.
 
 Convergence (`diagnose`), every criterion required, its failures listed:
   1. τ: the integrated autocorrelation time of every parameter in every ensemble
@@ -19,7 +22,7 @@ Convergence (`diagnose`), every criterion required, its failures listed:
      walker accepted at least one move (a walker that never moved has no τ and is stuck);
   2. R-hat <= `posterior.rhat_max` and 3. bulk and tail ESS >= `posterior.ess_min`, with ArviZ
      (rank-normalised split R-hat, Vehtari et al. 2021) ACROSS the ensembles: chain = ensemble.
-     The walkers of one ensemble are not independent chains (the stretch move couples them), so
+     The walkers of one ensemble are not independent chains (the ensemble moves couple them), so
      R-hat across walkers is not valid. Each ensemble's draws are its post-burn-in, thinned
      states, collapsed over the walkers in two orders: for R-hat step-major (the walkers of one
      step, then the next step), so the split halves compare early with late steps and a drift
@@ -27,7 +30,7 @@ Convergence (`diagnose`), every criterion required, its failures listed:
      autocorrelation ArviZ estimates along the draws is each walker's own over time (step-major
      would put independent-looking neighbouring walkers side by side and overstate the ESS);
   4. the mean acceptance fraction of every ensemble in [acceptance_min, acceptance_max]
-     (the stretch move's healthy range is about 0.2-0.5).
+     (the DE and stretch moves' healthy range is about 0.2-0.5).
 Burn-in = 2 max τ steps and thinning = max(1, min τ / 2) (emcee's guidance), both from the
 measured τ; when τ is unusable (not finite, or burn-in beyond half the chain) half the chain is
 burnt and nothing thinned, and the run is not converged.

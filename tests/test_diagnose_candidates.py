@@ -125,6 +125,33 @@ def test_the_ground_tilt_candidate_maps_its_tilt_vector():
     assert settings["ground_offset"] == pytest.approx(0.01)
 
 
+def test_the_tilt_search_starts_from_the_fitted_offset():
+    """Where the object lands, a tilt and an offset both move the ground: from offset 0 the first
+    tilt sweep stands in for the offset; started from the offset the plane fitted (starts_from),
+    it finds the tilt."""
+    from types import SimpleNamespace
+
+    from sgdr.discrepancy.candidates import fit_candidate
+
+    cand = CANDIDATES.get_named("ground_tilt")
+    assert cand.starts_from == "ground_plane"
+    truth = {"tilt": 5.0, "offset": 0.02}
+
+    def d(settings, _obs, _repl=None):
+        tilt = settings.get("ground_tilt_deg", 0.0) * np.cos(np.radians(settings.get("ground_tilt_azimuth_deg", 0.0)))
+        off = settings.get("ground_offset", 0.0)
+        height = off + 0.004 * tilt  # the ground under the landing point
+        return 1e4 * (height - (truth["offset"] + 0.004 * truth["tilt"])) ** 2 + 0.01 * (tilt - truth["tilt"]) ** 2
+
+    ev = SimpleNamespace(d=d, obs_fit="fit", obs_held="held", obs_future=None)
+    cold = fit_candidate(ev, cand, _ctx(), 16)
+    warm = fit_candidate(ev, cand, _ctx(), 16, start={"offset": 0.021, "unknown": 1.0})
+    assert warm.values["tilt_a_deg"] == pytest.approx(5.0, abs=0.5), warm.values
+    assert abs(cold.values["tilt_a_deg"] - 5.0) > 2.0, cold.values  # what the cold start gave
+    assert warm.d_fit < cold.d_fit
+    assert warm.evaluated[0][1]["offset"] == pytest.approx(0.021)  # the search began there
+
+
 def test_downscaled_cameras_match_block_means():
     from sgdr.cameras import Camera
     from sgdr.discrepancy.measures import block_mean, downscale_factor, downscaled

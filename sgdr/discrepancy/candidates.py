@@ -68,6 +68,9 @@ class Candidate:
     # the frames it is fitted and judged on: "fit" (every fit frame) or "free_flight" (the fit frames
     # before the recorded hit frame, where it acts alone; sgdr.discrepancy.run)
     window: str = "fit"
+    # the candidate this one nests (""): its fitted values of the same names start this one's search
+    # (the tilt from the fitted offset: from offset 0 the first tilt sweep stands in for the offset)
+    starts_from: str = ""
 
 
 def _fall_basis(c: float, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -166,6 +169,7 @@ CANDIDATES["ground_tilt"] = Candidate(
     (Param("tilt_a_deg", -12.0, 12.0), Param("tilt_b_deg", -12.0, 12.0), Param("offset", -0.15, 0.15, relative=True)),
     _ground_tilt,
     "physics.ground_tilt_deg / ground_tilt_azimuth_deg from a tilt vector, and physics.ground_offset",
+    starts_from="ground_plane",
 )
 CANDIDATES["contact"] = Candidate(
     "contact",
@@ -333,12 +337,15 @@ def _search(objective, bounds: list, x0: np.ndarray, evaluations: int) -> np.nda
     return np.clip(x, [b[0] for b in bounds], [b[1] for b in bounds])
 
 
-def fit_candidate(ev: Evaluator, cand: Candidate, ctx: Context, evaluations: int) -> Fit:
+def fit_candidate(ev: Evaluator, cand: Candidate, ctx: Context, evaluations: int, start: dict | None = None) -> Fit:
+    """The candidate's values that minimise D on the fitting views; the search starts at the null
+    values, or at `start`'s for the names it holds (clipped into the bounds)."""
     names = [p.name for p in cand.params]
     bounds = [
         (p.low * (ctx.size if p.relative else 1.0), p.high * (ctx.size if p.relative else 1.0)) for p in cand.params
     ]
-    x0 = np.array([p.null for p in cand.params], float)
+    x0 = np.array([float((start or {}).get(p.name, p.null)) for p in cand.params], float)
+    x0 = np.clip(x0, [b[0] for b in bounds], [b[1] for b in bounds])
     evaluated: list = []
 
     def objective(x, variant):

@@ -159,7 +159,9 @@ def run_diagnosis(cfg) -> dict:
     def fitted(cand, start: str):
         values, settings, ctx.values = asset_state if start == "asset" else refit_state
         ev.reset(values, settings)
-        fit = fit_candidate(ev, cand, ctx, dc.evaluations)
+        nested = candidates.get(cand.starts_from)  # e.g. the tilt starts from the fitted offset
+        warm = nested["values"] if nested is not None and not nested.get("at_null", False) else None
+        fit = fit_candidate(ev, cand, ctx, dc.evaluations, start=warm)
         d_alone, joint = fit.d_held_out, None
         if rebase is not None:  # the base's own parameters refitted with the candidate in place
             settings, repl = cand.apply(ctx, fit.values, fit.variant)

@@ -261,14 +261,29 @@ def effect_sizes(seq_dir: Path) -> dict:
     }
 
 
+_THRESHOLDS: dict = {}
+
+
+def method_thresholds(method: str) -> dict:
+    """`diagnose.min_gain_by_candidate` as the config composes it for `method` (a method file may
+    set its own, e.g. conf/method/single_k.yaml); cached per method."""
+    if method not in _THRESHOLDS:
+        from sgdr.config import compose
+
+        cfg = compose([f"method={method}"])
+        _THRESHOLDS[method] = dict(cfg.diagnose.min_gain_by_candidate)
+    return _THRESHOLDS[method]
+
+
 def redecide(rec: dict, thresholds: dict | None = None) -> str:
     """The cause a case's recorded gains name under `thresholds` (default: the current
-    `diagnose.min_gain_by_candidate`), so that the bars follow a recalibration without rerunning."""
+    `diagnose.min_gain_by_candidate` of the record's method), so that the bars follow a
+    recalibration without rerunning."""
     from sgdr.discrepancy.candidates import CANDIDATES
-    from sgdr.discrepancy.config import MIN_GAIN_BY_CANDIDATE, DiagnoseConfig
+    from sgdr.discrepancy.config import DiagnoseConfig
     from sgdr.discrepancy.run import decide
 
-    thresholds = thresholds or MIN_GAIN_BY_CANDIDATE
+    thresholds = thresholds or method_thresholds(rec.get("method", "spring_gaus"))
     gains = {n: c["gain"] for n, c in rec["candidates"].items()}
     per = {n: thresholds.get(n, DiagnoseConfig.min_gain) for n in gains}
     free = [n for n, c in rec["candidates"].items() if c.get("window") == "free_flight"]

@@ -98,9 +98,7 @@ def _rec(id_, expected, cause, gains):
 
 
 def test_summary_bars(monkeypatch):
-    from sgdr.discrepancy import config as dconf
-
-    monkeypatch.setattr(dconf, "MIN_GAIN_BY_CANDIDATE", {"gravity": 0.1, "air_drag": 0.1})
+    monkeypatch.setattr(S, "method_thresholds", lambda method: {"gravity": 0.1, "air_drag": 0.1})
     old = _rec("g-none", "none", "gravity", {"gravity": 0.9, "air_drag": 0.0})
     del old["base_refit"]  # diagnosed before the base refit: kept in the file, not counted
     results = {
@@ -120,10 +118,20 @@ def test_summary_bars(monkeypatch):
     assert s["failed"] == ["f"] and s["before_base_refit"] == ["g-none"]
     assert "✗" in S.markdown(results)
     # a recalibrated threshold re-decides the recorded gains: b-none's 0.2 no longer names gravity
-    monkeypatch.setattr(dconf, "MIN_GAIN_BY_CANDIDATE", {"gravity": 0.25, "air_drag": 0.1})
+    monkeypatch.setattr(S, "method_thresholds", lambda method: {"gravity": 0.25, "air_drag": 0.1})
     s = S.summary(results)
     assert s["null_none_share"] == 1.0 and s["injected_named_share"] == pytest.approx(1 / 3)
     assert S.redecide(results["c-gravity"]) == "gravity"
+
+
+def test_each_base_method_has_its_own_thresholds():
+    """The single-k base's thresholds come from its method file (conf/method/single_k.yaml): a
+    ground gain that names ground_plane over the per-anchor base is `none` over the global-k one."""
+    default, single = S.method_thresholds("spring_gaus"), S.method_thresholds("single_k")
+    assert single["ground_plane"] > default["ground_plane"] and single["gravity"] == default["gravity"]
+    gains = {"ground_plane": 0.3, "gravity": 0.0}
+    assert S.redecide({**_rec("x-none", "none", "none", gains), "method": "spring_gaus"}) == "ground_plane"
+    assert S.redecide({**_rec("y-none", "none", "none", gains), "method": "single_k"}) == "none"
 
 
 def test_a_free_flight_cause_comes_before_a_contact_borne_one():

@@ -9,9 +9,13 @@ asset with that truth (`sgdr.posterior.twin`: the truth is in the model class), 
 is computed on the twin's images with the same asset (`sgdr.posterior.run.run_posterior`).
 Calibrated posteriors put the truth inside their 90% interval (5-95%) in 90% of the cases and
 give SBC ranks (the number of kept posterior draws below the truth, Talts et al. 2018) that are
-uniform. Writes `<out>/calibration.json` (per case: truth, median, 5%, 95%, rank, converged;
-per parameter: coverage and the rank histogram) and `<out>/ranks.png`; the last line printed is
-one JSON object with the coverages. Cases already in `calibration.json` are kept (resumable).
+uniform. Writes `<out>/calibration.json` (or `+record=<file>`, e.g. a committed file under
+results/ while the case folders stay in `<out>`; per case: truth, median, 5%, 95%, rank,
+converged, τ, R-hat, the asset's digest; per parameter: coverage and the rank histogram, over all
+cases and over the converged ones) and `<out>/ranks.png`; the last line printed is one JSON
+object with the coverages. Cases already in the record are kept (resumable over sittings; a
+record written with another sampler setup is refused). `+twin_scale=s` renders the twins s
+times finer than the asset's cameras.
 """
 
 from __future__ import annotations
@@ -80,23 +84,30 @@ def plot_ranks(summary: dict, path: Path) -> Path:
     return path
 
 
-def calibrate(cfg, n_cases: int, out: Path, progress: bool = True, twin_scale: int = 1) -> dict:
+def calibrate(
+    cfg, n_cases: int, out: Path, progress: bool = True, twin_scale: int = 1, record_file: Path | None = None
+) -> dict:
     """`n_cases` twins of `posterior.run`'s asset, each rendered `twin_scale` times finer than its
     cameras, and their posteriors; resumable (cases in `<out>/calibration.json` are kept, and a
     file written with another `twin_scale` or sampler is refused)."""
+    import hashlib
     from dataclasses import replace
 
     from sgdr.posterior.run import run_posterior
     from sgdr.posterior.twin import twin_sequence
 
     out.mkdir(parents=True, exist_ok=True)
-    record_file = out / "calibration.json"
+    record_file = Path(record_file) if record_file else out / "calibration.json"
+    record_file.parent.mkdir(parents=True, exist_ok=True)
     pc = cfg.posterior
     setup = {
         "twin_scale": int(twin_scale),
         "moves": pc.moves,
+        "space": pc.space,
         "n_steps": int(pc.n_steps),
         "n_walkers": int(pc.n_walkers),
+        "n_ensembles": int(pc.n_ensembles),
+        "parameters": list(pc.parameters),
     }
     record = json.loads(record_file.read_text()) if record_file.exists() else {"cases": [], "setup": setup}
     if record.setdefault("setup", setup) != setup:
@@ -106,6 +117,7 @@ def calibrate(cfg, n_cases: int, out: Path, progress: bool = True, twin_scale: i
     names = list(pc.parameters)
     done = {c["case"] for c in record["cases"]}
     asset_dir = Path(pc.run) / "asset"
+    digest = hashlib.sha256((asset_dir / "asset.json").read_bytes()).hexdigest()[:12]
     for case in range(n_cases):
         if case in done:
             continue
@@ -132,6 +144,7 @@ def calibrate(cfg, n_cases: int, out: Path, progress: bool = True, twin_scale: i
                 "inside": {n: bool(diag["q05"][n] <= truth[n] <= diag["q95"][n]) for n in names},
                 "rank": {n: sbc_rank(kept[:, i], truth[n]) for i, n in enumerate(names)},
                 "converged": bool(res["converged"]),
+                "asset": digest,
                 "failed": res["failed"],
                 "tau_max": diag.get("tau_max"),
                 "rhat_max": max((v for v in diag["rhat"].values() if v is not None), default=None),
@@ -169,10 +182,13 @@ def main(argv: list[str]) -> None:
         validate(cfg)
         sgdr.backend.init(cfg.backend, cfg.threads or None)
         out = Path(extra.get("out", "results/calibration"))
-        record = calibrate(cfg, int(extra.get("cases", 20)), out, twin_scale=int(extra.get("twin_scale", 1)))
+        record_file = Path(extra["record"]) if "record" in extra else out / "calibration.json"
+        record = calibrate(
+            cfg, int(extra.get("cases", 20)), out, twin_scale=int(extra.get("twin_scale", 1)), record_file=record_file
+        )
     summary = {n: s["coverage_90"] for n, s in record["summary"].items()}
     conv = {n: s["coverage_90"] for n, s in record["summary_converged"].items()}
-    line = {"calibration": str(out / "calibration.json"), "cases": len(record["cases"]), "coverage_90": summary}
+    line = {"calibration": str(record_file), "cases": len(record["cases"]), "coverage_90": summary}
     print(json.dumps({**line, "converged_cases": record["converged_cases"], "coverage_90_converged": conv}))
 
 

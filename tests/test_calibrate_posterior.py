@@ -2,6 +2,7 @@
 the prior's middle, SBC ranks, coverage and rank histograms."""
 
 import numpy as np
+import pytest
 
 from evaluation.calibrate_posterior import N_BINS, draw_truth, sbc_rank, summarise
 from sgdr.posterior.config import PriorConfig
@@ -33,3 +34,20 @@ def test_ranks_and_summary():
     assert s["cases"] == 4 and s["coverage_90"] == 0.75
     assert len(s["rank_histogram"]) == N_BINS and sum(s["rank_histogram"]) == 3
     assert s["rank_histogram"][0] == 1 and s["rank_histogram"][-1] == 1
+
+
+def test_a_record_of_another_sampler_setup_is_refused_before_any_work(tmp_path):
+    import json
+
+    from omegaconf import OmegaConf
+
+    from evaluation.calibrate_posterior import calibrate
+    from sgdr.config import compose
+
+    cfg = OmegaConf.to_object(compose(["preset=tiny", f"posterior.run={tmp_path / 'no_run'}"]))
+    record = tmp_path / "kept" / "calibration.json"
+    record.parent.mkdir()
+    record.write_text(json.dumps({"cases": [], "setup": {"moves": "stretch", "n_steps": 12}}))
+    with pytest.raises(SystemExit, match="calibration.json was written with"):
+        calibrate(cfg, 2, tmp_path / "cases", progress=False, record_file=record)
+    assert not (tmp_path / "cases" / "case_000").exists()

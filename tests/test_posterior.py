@@ -318,6 +318,8 @@ def test_tiny_posterior_on_a_twin(tiny):
     section = page[page.index('<section id="posterior">') :]
     assert section.index("Not converged") < section.index("<table>")
     assert "5%" in section and "R-hat" in section and "uniform" in section and "<video" in section
+    assert on_disk["sampler"] == {"moves": "de", "space": "logit", "rollout": "batched"}  # the defaults
+    assert "differential-evolution moves" in section
     # logged into the run's MLflow run
     from mlflow.tracking import MlflowClient
 

@@ -257,7 +257,8 @@ def section(record: dict, out_dir):
             f"(frame 0 and the future left out), noise scale σ = {record['likelihood']['sigma_px']:.3g} px from the "
             f"identified parameters' residual, one observation per view and frame (the tempering), extra temperature "
             f"{record['likelihood']['temperature']:g}. {d['n_ensembles']} independent ensembles of {d['n_walkers']} "
-            f"walkers x {d['n_steps']} steps started around the run's identified parameters; burn-in {d['burn_in']} "
+            f"walkers x {d['n_steps']} steps started around the run's identified parameters"
+            f"{_sampler_words(record.get('sampler'))}; burn-in {d['burn_in']} "
             f"steps, thinning {d['thin']}, {d['n_kept']} samples kept; {record['cost']['rollouts']} rollouts in "
             f"{record['cost']['seconds']:.0f} s."
         )
@@ -350,3 +351,14 @@ def section(record: dict, out_dir):
         )
     )
     return Section("Posterior", "".join(body))
+
+
+def _sampler_words(sampler: dict | None) -> str:
+    """' (DE moves in the logit space)' for the report's sampling sentence; '' for a record without it."""
+    if not sampler:
+        return ""
+    moves = {"de": "differential-evolution", "stretch": "stretch"}.get(sampler["moves"], sampler["moves"])
+    space = {"logit": "each parameter's logit over its prior box", "box": "the prior box"}.get(
+        sampler["space"], sampler["space"]
+    )
+    return f" ({moves} moves in {space})"

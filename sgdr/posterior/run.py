@@ -169,6 +169,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
         "names": problem.names,
         "map": {n: float(t) for n, t in zip(problem.names, problem.map_theta)},
         "priors": {n: [float(lo), float(hi)] for n, lo, hi in zip(problem.names, problem.low, problem.high)},
+        "sampler": {"moves": pc.moves, "space": pc.space, "rollout": pc.rollout},
         "truth": truth or None,
         "notes": notes,
         "truth_inside_5_95": {n: bool(diag["q05"][n] <= t <= diag["q95"][n]) for n, t in truth.items()} or None,

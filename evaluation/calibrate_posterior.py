@@ -88,8 +88,8 @@ def calibrate(
     cfg, n_cases: int, out: Path, progress: bool = True, twin_scale: int = 1, record_file: Path | None = None
 ) -> dict:
     """`n_cases` twins of `posterior.run`'s asset, each rendered `twin_scale` times finer than its
-    cameras, and their posteriors; resumable (cases in `<out>/calibration.json` are kept, and a
-    file written with another `twin_scale` or sampler is refused)."""
+    cameras, and their posteriors; resumable (cases in `record_file`, default
+    `<out>/calibration.json`, are kept, and a record written with another setup is refused)."""
     import hashlib
     from dataclasses import replace
 

@@ -124,15 +124,17 @@ def test_frozen_frames_replay_what_the_traced_substeps_compute():
             np.testing.assert_allclose(frozen.positions, traced.positions, atol=1e-6 * SIZE, rtol=0)
             frames += N_FRAMES - 1
     assert 1 <= _frozen_frame.n_recordings - before < frames
-    # once a model's layout is recorded (its first frame and the rest, literals made opaque), a
-    # call with other sample values only replays (the last variant's model, called twice above)
-    before = _frozen_frame.n_recordings
-    values = samples(3)
-    values["kappa"] *= -1.0
-    frozen = batched_rollout(model, base, values, GROUND, N_FRAMES, DT, N_SUB, cfg)
-    assert _frozen_frame.n_recordings == before
-    traced = batched_rollout(model, base, values, GROUND, N_FRAMES, DT, N_SUB, cfg, freeze=False)
-    np.testing.assert_allclose(frozen.positions, traced.positions, atol=1e-6 * SIZE, rtol=0)
+    # once a model's layout is recorded (its first frame and the rest, literals made opaque: a
+    # few calls), calls with other sample values only replay
+    counts = []
+    for sign in (-1.0, 1.0, -0.5, 0.5, -0.25):
+        values = samples(3)
+        values["kappa"] *= sign
+        frozen = batched_rollout(model, base, values, GROUND, N_FRAMES, DT, N_SUB, cfg)
+        counts.append(_frozen_frame.n_recordings)
+        traced = batched_rollout(model, base, values, GROUND, N_FRAMES, DT, N_SUB, cfg, freeze=False)
+        np.testing.assert_allclose(frozen.positions, traced.positions, atol=1e-6 * SIZE, rtol=0)
+    assert counts[-1] == counts[-2] == counts[-3], counts
 
 
 def test_single_sample_with_base_values():

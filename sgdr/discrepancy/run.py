@@ -156,6 +156,8 @@ def run_diagnosis(cfg) -> dict:
     refit_state = ({**ev.values, **refit_values}, dict(ev.settings), {**ctx.values, **refit_values})
     flight = free_flight(seq, asset, measure, dc, cfg.seed, fit_views, held_views, fit_frames, score, refit_values)
 
+    candidates = {}
+
     def fitted(cand, start: str):
         values, settings, ctx.values = asset_state if start == "asset" else refit_state
         ev.reset(values, settings)
@@ -170,7 +172,6 @@ def run_diagnosis(cfg) -> dict:
             fit = replace(fit, d_fit=joint["d_fit"], d_held_out=joint["d_held_out"], d_future=joint["d_future"])
         return fit, joint, d_alone, start
 
-    candidates = {}
     for name in dc.candidates:
         cand = CANDIDATES.get_named(name, "diagnose.candidates")
         if cand.window == "free_flight" and flight is not None:
@@ -299,15 +300,14 @@ def free_flight(seq, asset, measure, dc, seed, fit_views, held_views, fit_frames
 
 
 def first_touch(positions, ground_point, ground_normal) -> int | None:
-    """The first frame after frame 0 in which a point of `positions` [T, N, 3] is within 1e-3 of
-    the object's extent of the ground plane; None when none is (or the rollout is unstable)."""
+    """The first frame after frame 0 in which a point of `positions` [T, N, 3] touches the ground
+    (`sgdr.posterior.twin.touching`); None when none does (or the rollout is unstable)."""
+    from sgdr.posterior.twin import touching
+
     if positions is None:
         return None
-    n = np.asarray(ground_normal, float) / np.linalg.norm(ground_normal)
-    heights = (np.asarray(positions, float) - np.asarray(ground_point, float)) @ n  # [T, N]
-    tol = 1e-3 * float(np.ptp(positions[0], axis=0).max())
-    touching = np.flatnonzero(heights[1:].min(axis=1) <= tol) + 1
-    return int(touching[0]) if touching.size else None
+    frames = np.flatnonzero(touching(positions, ground_point, ground_normal)[1:]) + 1
+    return int(frames[0]) if frames.size else None
 
 
 def judge_in_free_flight(cand, flight, ev, refit_state, ctx, base, floor, dc) -> dict:

@@ -354,7 +354,8 @@ def section(record: dict, out_dir):
 
 
 def _sampler_words(sampler: dict | None) -> str:
-    """' (DE moves in the logit space)' for the report's sampling sentence; '' for a record without it."""
+    """' (differential-evolution moves in ...)' for the report's sampling sentence; '' for a record
+    without the sampler."""
     if not sampler:
         return ""
     moves = {"de": "differential-evolution", "stretch": "stretch"}.get(sampler["moves"], sampler["moves"])

@@ -15,13 +15,16 @@ converged, τ, R-hat, the asset's digest; per parameter: coverage and the rank h
 cases and over the converged ones) and `<out>/ranks.png`; the last line printed is one JSON
 object with the coverages. Cases already in the record are kept (resumable over sittings; a
 record written with another sampler setup is refused). `+twin_scale=s` renders the twins s
-times finer than the asset's cameras.
+times finer than the asset's cameras. `+shard=i/n` runs only the cases with case % n == i, so
+that n processes (one per core) share one record: each case is merged into it under a file lock.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -84,12 +87,49 @@ def plot_ranks(summary: dict, path: Path) -> Path:
     return path
 
 
+@contextmanager
+def locked_record(record_file: Path, setup: dict):
+    """The record, read under an exclusive lock (so that shards running at once merge their cases
+    instead of overwriting each other's); a record written with another setup is refused."""
+    with open(record_file.with_name(record_file.name + ".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            record = json.loads(record_file.read_text()) if record_file.exists() else {"cases": [], "setup": setup}
+            if record.setdefault("setup", setup) != setup:
+                raise SystemExit(
+                    f"error: {record_file} was written with {record['setup']}, not {setup}: use another +out= or remove it"
+                )
+            yield record
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+def parse_shard(text: str | None) -> tuple[int, int]:
+    """`"i/n"` -> (i, n) with 0 <= i < n; None -> (0, 1)."""
+    if text is None:
+        return 0, 1
+    try:
+        i, n = (int(x) for x in str(text).split("/"))
+    except ValueError:
+        raise SystemExit(f"error: +shard={text}: expected i/n, e.g. +shard=0/2") from None
+    if not (n >= 1 and 0 <= i < n):
+        raise SystemExit(f"error: +shard={text}: need 0 <= i < n")
+    return i, n
+
+
 def calibrate(
-    cfg, n_cases: int, out: Path, progress: bool = True, twin_scale: int = 1, record_file: Path | None = None
+    cfg,
+    n_cases: int,
+    out: Path,
+    progress: bool = True,
+    twin_scale: int = 1,
+    record_file: Path | None = None,
+    shard: tuple[int, int] = (0, 1),
 ) -> dict:
     """`n_cases` twins of `posterior.run`'s asset, each rendered `twin_scale` times finer than its
     cameras, and their posteriors; resumable (cases in `record_file`, default
-    `<out>/calibration.json`, are kept, and a record written with another setup is refused)."""
+    `<out>/calibration.json`, are kept, and a record written with another setup is refused).
+    `shard=(i, n)` runs the cases with case % n == i; shards merge into one record."""
     import hashlib
     from dataclasses import replace
 
@@ -109,18 +149,17 @@ def calibrate(
         "n_ensembles": int(pc.n_ensembles),
         "parameters": list(pc.parameters),
     }
-    record = json.loads(record_file.read_text()) if record_file.exists() else {"cases": [], "setup": setup}
-    if record.setdefault("setup", setup) != setup:
-        raise SystemExit(
-            f"error: {record_file} was written with {record['setup']}, not {setup}: use another +out= or remove it"
-        )
+    with locked_record(record_file, setup):
+        pass  # refuses a record of another setup before any work
     names = list(pc.parameters)
-    done = {c["case"] for c in record["cases"]}
     asset_dir = Path(pc.run) / "asset"
     digest = hashlib.sha256((asset_dir / "asset.json").read_bytes()).hexdigest()[:12]
     for case in range(n_cases):
-        if case in done:
+        if case % shard[1] != shard[0]:
             continue
+        with locked_record(record_file, setup) as record:
+            if case in {c["case"] for c in record["cases"]}:
+                continue
         truth = draw_truth(pc.priors, names, case)
         twin = twin_sequence(
             asset_dir, out / f"case_{case:03d}" / "twin", truth, cfg.render, image_scale=int(twin_scale)
@@ -134,36 +173,39 @@ def calibrate(
         with np.load(out / f"case_{case:03d}" / "posterior" / "samples.npz", allow_pickle=False) as z:
             kept = z["kept"]
         diag = res["diagnostics"]
-        record["cases"].append(
-            {
-                "case": case,
-                "truth": truth,
-                "median": {n: diag["median"][n] for n in names},
-                "q05": {n: diag["q05"][n] for n in names},
-                "q95": {n: diag["q95"][n] for n in names},
-                "inside": {n: bool(diag["q05"][n] <= truth[n] <= diag["q95"][n]) for n in names},
-                "rank": {n: sbc_rank(kept[:, i], truth[n]) for i, n in enumerate(names)},
-                "converged": bool(res["converged"]),
-                "asset": digest,
-                "failed": res["failed"],
-                "tau_max": diag.get("tau_max"),
-                "rhat_max": max((v for v in diag["rhat"].values() if v is not None), default=None),
-                "seconds": res["cost"]["seconds"],
-            }
-        )
-        record_file.write_text(json.dumps(record, indent=1))
+        entry = {
+            "case": case,
+            "truth": truth,
+            "median": {n: diag["median"][n] for n in names},
+            "q05": {n: diag["q05"][n] for n in names},
+            "q95": {n: diag["q95"][n] for n in names},
+            "inside": {n: bool(diag["q05"][n] <= truth[n] <= diag["q95"][n]) for n in names},
+            "rank": {n: sbc_rank(kept[:, i], truth[n]) for i, n in enumerate(names)},
+            "converged": bool(res["converged"]),
+            "asset": digest,
+            "failed": res["failed"],
+            "tau_max": diag.get("tau_max"),
+            "rhat_max": max((v for v in diag["rhat"].values() if v is not None), default=None),
+            "seconds": res["cost"]["seconds"],
+        }
+        with locked_record(record_file, setup) as record:
+            record["cases"] = sorted(
+                [c for c in record["cases"] if c["case"] != case] + [entry], key=lambda c: c["case"]
+            )
+            record_file.write_text(json.dumps(record, indent=1))
         if progress:
-            c = record["cases"][-1]
+            c = entry
             inside = sum(c["inside"].values())
             print(
                 f"case {case}: {inside}/{len(names)} truths inside their 90% interval, {c['seconds']:.0f} s", flush=True
             )
-    record["summary"] = summarise(record["cases"], names)
-    converged = [c for c in record["cases"] if c["converged"]]
-    record["converged_cases"] = len(converged)
-    record["summary_converged"] = summarise(converged, names)
-    record["parameters"] = names
-    record_file.write_text(json.dumps(record, indent=1))
+    with locked_record(record_file, setup) as record:
+        record["summary"] = summarise(record["cases"], names)
+        converged = [c for c in record["cases"] if c["converged"]]
+        record["converged_cases"] = len(converged)
+        record["summary_converged"] = summarise(converged, names)
+        record["parameters"] = names
+        record_file.write_text(json.dumps(record, indent=1))
     plot_ranks(record["summary"], out / "ranks.png")
     return record
 
@@ -184,7 +226,12 @@ def main(argv: list[str]) -> None:
         out = Path(extra.get("out", "results/calibration"))
         record_file = Path(extra["record"]) if "record" in extra else out / "calibration.json"
         record = calibrate(
-            cfg, int(extra.get("cases", 20)), out, twin_scale=int(extra.get("twin_scale", 1)), record_file=record_file
+            cfg,
+            int(extra.get("cases", 20)),
+            out,
+            twin_scale=int(extra.get("twin_scale", 1)),
+            record_file=record_file,
+            shard=parse_shard(extra.get("shard")),
         )
     summary = {n: s["coverage_90"] for n, s in record["summary"].items()}
     conv = {n: s["coverage_90"] for n, s in record["summary_converged"].items()}

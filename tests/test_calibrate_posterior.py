@@ -51,3 +51,38 @@ def test_a_record_of_another_sampler_setup_is_refused_before_any_work(tmp_path):
     with pytest.raises(SystemExit, match="calibration.json was written with"):
         calibrate(cfg, 2, tmp_path / "cases", progress=False, record_file=record)
     assert not (tmp_path / "cases" / "case_000").exists()
+
+
+def _append_cases(record_file, setup, cases):
+    import json
+    import time
+    from pathlib import Path
+
+    from evaluation.calibrate_posterior import locked_record
+
+    for case in cases:
+        with locked_record(Path(record_file), setup) as record:
+            time.sleep(0.02)  # a read-modify-write that would lose the other shard's case without the lock
+            record["cases"].append({"case": case})
+            Path(record_file).write_text(json.dumps(record))
+
+
+def test_shards_merge_their_cases_into_one_record(tmp_path):
+    import json
+    import multiprocessing as mp
+
+    from evaluation.calibrate_posterior import parse_shard
+
+    assert parse_shard(None) == (0, 1) and parse_shard("1/2") == (1, 2)
+    for bad in ("2/2", "1", "a/b", "0/0"):
+        with pytest.raises(SystemExit, match="shard"):
+            parse_shard(bad)
+    record, setup = tmp_path / "calibration.json", {"moves": "de"}
+    ctx = mp.get_context("spawn")
+    shards = [ctx.Process(target=_append_cases, args=(str(record), setup, range(i, 16, 2))) for i in range(2)]
+    for p in shards:
+        p.start()
+    for p in shards:
+        p.join(60)
+    assert [p.exitcode for p in shards] == [0, 0]
+    assert sorted(c["case"] for c in json.loads(record.read_text())["cases"]) == list(range(16))

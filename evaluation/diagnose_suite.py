@@ -279,16 +279,34 @@ def redecide(rec: dict, thresholds: dict | None = None) -> str:
     """The cause a case's recorded gains name under `thresholds` (default: the current
     `diagnose.min_gain_by_candidate` of the record's method), so that the bars follow a
     recalibration without rerunning."""
+    return redecide_with_rivals(rec, thresholds)[0]
+
+
+def redecide_with_rivals(rec: dict, thresholds: dict | None = None) -> tuple[str, list[str]]:
+    """`redecide`'s cause and the other causes that fit as well (`sgdr.discrepancy.run.rivals`,
+    the default `diagnose.mimic_margin`)."""
     from sgdr.discrepancy.candidates import CANDIDATES
     from sgdr.discrepancy.config import DiagnoseConfig
-    from sgdr.discrepancy.run import decide
+    from sgdr.discrepancy.run import decide, rivals
 
     thresholds = thresholds or method_thresholds(rec.get("method", "spring_gaus"))
     gains = {n: c["gain"] for n, c in rec["candidates"].items()}
     per = {n: thresholds.get(n, DiagnoseConfig.min_gain) for n in gains}
     free = [n for n, c in rec["candidates"].items() if c.get("window") == "free_flight"]
     best = decide(gains, per, free)
-    return "none" if best is None else CANDIDATES.get_named(best).cause
+    causes = {n: CANDIDATES.get_named(n).cause for n in gains}
+    rival = rivals(gains, per, best, causes, DiagnoseConfig.mimic_margin, free)
+    return ("none" if best is None else causes[best]), [causes[n] for n in rival]
+
+
+def _decided(results: dict) -> list[dict]:
+    """The counted records (`_current`) with the cause and rivals their gains name now."""
+    out = []
+    for r in results.values():
+        if _current(r):
+            cause, rival = redecide_with_rivals(r)
+            out.append({**r, "cause": cause, "ambiguous_with": rival, "correct": cause == r["expected"]})
+    return out
 
 
 def _current(rec: dict) -> bool:
@@ -301,9 +319,7 @@ def summary(results: dict) -> dict:
     """The bars over the finished cases (module docstring). A case counts with the cause its
     recorded gains name under the current thresholds (`redecide`); `cause` as run is kept in
     the record."""
-    ok = [{**r, "cause": redecide(r)} for r in results.values() if _current(r)]
-    for r in ok:
-        r["correct"] = r["cause"] == r["expected"]
+    ok = _decided(results)
     null = [r for r in ok if r["expected"] == "none"]
     injected = [r for r in ok if r["expected"] != "none"]
     per_effect = {}
@@ -327,6 +343,11 @@ def summary(results: dict) -> dict:
         )
         if injected
         else None,
+        # named, but another cause fitted as well (a coin flip between mimics, flagged in the report)
+        "named_but_ambiguous": sorted(r["id"] for r in named if r["ambiguous_with"]),
+        "injected_named_unambiguous_share": (
+            sum(not r["ambiguous_with"] for r in named) / len(injected) if injected else None
+        ),
         "per_effect": per_effect,
         "null_max_gain": {n: max(g) for n, g in null_gains.items()},
         "failed": sorted(r["id"] for r in results.values() if r.get("status") != "ok"),
@@ -341,9 +362,7 @@ def _candidate_of(cause: str) -> str:
 
 def markdown(results: dict) -> str:
     """One row per finished case: truth, the cause named, each candidate's held-out gain."""
-    ok = [{**r, "cause": redecide(r)} for r in results.values() if _current(r)]
-    for r in ok:
-        r["correct"] = r["cause"] == r["expected"]
+    ok = _decided(results)
     names = sorted({n for r in ok for n in r["candidates"]})
     lines = ["| case | commit | expected | named | " + " | ".join(names) + " |", "|---" * (4 + len(names)) + "|"]
     for r in ok:
@@ -351,7 +370,7 @@ def markdown(results: dict) -> str:
         for n in names:
             c = r["candidates"].get(n)
             cells.append("-" if c is None else f"{c['gain']:.3f} ({c['value']:.3g})")
-        mark = "" if r["correct"] else " ✗"
+        mark = ("" if r["correct"] else " ✗") + "".join(f" ≈ {c}" for c in r["ambiguous_with"])
         lines.append(
             f"| {r['id']} | {r.get('commit', '?')} | {r['expected']} | {r['cause']}{mark} | " + " | ".join(cells) + " |"
         )

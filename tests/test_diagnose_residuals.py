@@ -231,6 +231,9 @@ def test_record_is_strict_json_and_the_plots_are_written(tmp_path, n_views, n_fr
                  "discrepancy": {"measure": "points", "unit": "pixels²"}}  # fmt: skip
     html = section(diagnosis, record, {k: str(v) for k, v in plots.items()}).body
     assert "data:image/png;base64," in html and "Model discrepancy" not in html  # the title is the report's
+    assert "discrepancy-ambiguous" not in html
+    mimic = {**diagnosis, "cause": "gravity", "ambiguous_with": ["air_drag"], "mimic_margin": 0.05}
+    assert "<b>Ambiguous:</b> air_drag fits the data as well" in section(mimic, None, None).body
 
 
 def test_first_touch_is_the_first_frame_a_point_reaches_the_ground():

@@ -144,3 +144,40 @@ def test_a_free_flight_cause_comes_before_a_contact_borne_one():
     assert decide({"gravity": 0.41, "air_drag": 0.42, "ground_plane": 0.51}, th) == "ground_plane"  # no priority
     assert decide({"gravity": 0.10, "air_drag": 0.30, "ground_plane": 0.51}, th, free) == "ground_plane"  # none passes
     assert decide({"gravity": 0.0, "air_drag": 0.0, "ground_plane": 0.1}, th, free) is None
+
+
+def test_a_cause_with_a_rival_as_good_is_flagged_ambiguous(monkeypatch):
+    """Weaker gravity and drag both slow a fall: when both pass within diagnose.mimic_margin the
+    named cause is kept but the other is reported as fitting as well; a clear winner is not flagged."""
+    from sgdr.discrepancy.run import rivals
+
+    th = {"gravity": 0.15, "air_drag": 0.35, "ground_plane": 0.2, "ground_tilt": 0.5}
+    causes = {
+        "gravity": "gravity",
+        "air_drag": "air_drag",
+        "ground_plane": "ground_plane",
+        "ground_tilt": "ground_plane",
+    }
+    free = ["gravity", "air_drag"]
+    gains = {"gravity": 0.626, "air_drag": 0.604, "ground_plane": 0.61, "ground_tilt": 0.6}
+    assert rivals(gains, th, "gravity", causes, 0.05, free) == ["air_drag"]  # not the ground: not in free flight
+    assert rivals(gains, th, "gravity", causes, 0.01, free) == []
+    # below its threshold a close gain is no rival; one of the same cause (the tilt) is none either
+    assert rivals({**gains, "air_drag": 0.34}, {**th, "air_drag": 0.35}, "gravity", causes, 0.05, free) == []
+    ground = {"gravity": 0.0, "air_drag": 0.0, "ground_plane": 0.62, "ground_tilt": 0.6}
+    assert rivals(ground, th, "ground_plane", causes, 0.05, free) == []
+    assert rivals(gains, th, None, causes, 0.05, free) == []
+    monkeypatch.setattr(S, "method_thresholds", lambda method: th)
+    rec = _rec("t-air_drag", "air_drag", "gravity", {"gravity": 0.626, "air_drag": 0.604})
+    for n in free:
+        rec["candidates"][n]["window"] = "free_flight"
+    clear = _rec("c-gravity", "gravity", "gravity", {"gravity": 0.55, "air_drag": 0.0})
+    assert S.redecide_with_rivals(rec) == ("gravity", ["air_drag"])
+    right = _rec("a-air_drag", "air_drag", "air_drag", {"gravity": 0.408, "air_drag": 0.423})
+    for n in free:
+        right["candidates"][n]["window"] = "free_flight"
+    s = S.summary({"t": rec, "c": clear, "a": right})
+    assert s["injected_named_share"] == pytest.approx(2 / 3)
+    assert s["injected_named_unambiguous_share"] == pytest.approx(1 / 3)
+    assert s["named_but_ambiguous"] == ["a-air_drag"]  # the torus, named wrongly, is a miss
+    assert "≈ air_drag" in S.markdown({"t": rec})

@@ -62,6 +62,9 @@ class DiagnoseConfig:
     # per-candidate thresholds overriding min_gain (e.g. diagnose.min_gain_by_candidate.ground_tilt=0.5),
     # calibrated on the MPM null cases (docs/discrepancy.md)
     min_gain_by_candidate: dict = field(default_factory=lambda: dict(MIN_GAIN_BY_CANDIDATE))
+    # another cause whose gain is within this of the named one's is reported as fitting as well
+    # (diagnosis.json "ambiguous_with"; run.rivals): mimics such as weaker gravity and air drag
+    mimic_margin: float = 0.05
     residuals: bool = True  # also the residual diagnostics of the base fit (residuals.json, residual_*.png)
     residual_grid: int = 48  # blocks on the long side of the spatial residual maps (full resolution when larger)
     residual_views: int = 4  # views shown in residual_spatial.png (those that disagree most)
@@ -83,6 +86,7 @@ CHECKS = {
     "evaluations": at_least(4),
     "floor_margin": between(0.0, 1.0),
     "min_gain": between(0.0, 1.0),
+    "mimic_margin": between(0.0, 1.0),
     "min_gain_by_candidate": dict_of(between(0.0, 1.0), keys=choice("sgdr.discrepancy.candidates:CANDIDATES")),
     "residual_grid": at_least(4),
     "residual_views": at_least(1),

@@ -136,6 +136,13 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
     body = [f'<p id="discrepancy-cause"><b>Cause named: {esc(diagnosis["cause"])}</b> '
             "(a candidate is named when its held-out gain reaches its threshold, calibrated on null data; the largest "
             "such gain wins).</p>"]  # fmt: skip
+    if diagnosis.get("ambiguous_with"):
+        others = ", ".join(esc(c) for c in diagnosis["ambiguous_with"])
+        body.append(
+            f'<p id="discrepancy-ambiguous"><b>Ambiguous:</b> {others} fits the data as well (held-out gain within '
+            f"{_g(diagnosis.get('mimic_margin'))} of the named cause's): these data do not tell them apart. "
+            "Frames that separate them (e.g. a rebound, or sideways motion for air drag) would.</p>"
+        )
     rows = [
         [n, c["changes"], ", ".join(f"{k} = {_g(v)}" for k, v in (c["values"] or {}).items()),
          _g(c["gain"]), _g(c.get("min_gain", diagnosis["min_gain"])), _g(c["future_gain"]), c["decision"]]

@@ -68,6 +68,24 @@ def decide(gains: dict, thresholds: dict, first=()) -> str | None:
     return max(early or passing, key=lambda n: gains[n]) if passing else None
 
 
+def rivals(gains: dict, thresholds: dict, best: str | None, causes: dict, margin: float, first=()) -> list[str]:
+    """The candidates of another cause that explain the data about as well as `best`: among those
+    `decide` chose from (the passing free-flight ones when one passes, else all passing), those
+    whose gain is within `margin` (`diagnose.mimic_margin`) of the best's. Weaker gravity and air
+    drag both slow a fall and fit its few free-flight frames alike (the MPM suite: their gains
+    differed by 0.009-0.025 in all five cases where both passed, and the larger one was wrong once),
+    so the named cause is then a coin flip the report must not hide."""
+    if best is None:
+        return []
+    passing = [n for n, g in gains.items() if g is not None and np.isfinite(g) and g >= thresholds[n]]
+    early = [n for n in passing if n in set(first)]
+    pool = early if best in early else passing
+    return sorted(
+        (n for n in pool if causes[n] != causes[best] and gains[best] - gains[n] < float(margin)),
+        key=lambda n: -gains[n],
+    )
+
+
 def _same_sequence(a, b) -> bool:
     try:
         return Path(a).resolve() == Path(b).resolve()
@@ -204,17 +222,24 @@ def run_diagnosis(cfg) -> dict:
         log.info("diagnose: %s = %s, held-out gain %.3f", name, fit.values, candidates[name]["gain"])
     thresholds = {n: threshold(dc, n) for n in candidates}
     free = [n for n, c in candidates.items() if c["window"] == "free_flight"]
-    best = decide({n: c["gain"] for n, c in candidates.items()}, thresholds, free)
+    gains = {n: c["gain"] for n, c in candidates.items()}
+    best = decide(gains, thresholds, free)
+    causes = {n: c["cause"] for n, c in candidates.items()}
+    rival = rivals(gains, thresholds, best, causes, dc.mimic_margin, free)
     for name, c in candidates.items():
         c["min_gain"] = thresholds[name]
-        c["decision"] = "cause" if name == best else "rejected"
+        c["decision"] = "cause" if name == best else "as good" if name in rival else "rejected"
     record = {
         "cause": candidates[best]["cause"] if best is not None else "none",
+        # other causes that fit as well (gains within diagnose.mimic_margin): the data do not
+        # tell them apart from the named one
+        "ambiguous_with": [candidates[n]["cause"] for n in rival],
         "candidates": candidates,
         "base": base,
         "asset_fit": asset_fit,
         "rebase": rebase,
         "min_gain": float(dc.min_gain),
+        "mimic_margin": float(dc.mimic_margin),
         "discrepancy": {"measure": dc.discrepancy, "unit": measure.unit},
         "v0_refit": bool(own),
         "fitting_views": [seq.cameras[v].name for v in fit_views],

@@ -195,6 +195,7 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
         return _failed(rec, "diagnose", out, log_file)
     diag = json.loads((run_dir / "diagnose" / "diagnosis.json").read_text())
     rec.update(status="ok", cause=diag["cause"], correct=diag["cause"] == case.expected, truth=diag.get("truth", {}))
+    rec["ambiguous_with"] = diag.get("ambiguous_with", [])
     rec["candidates"] = {
         n: {
             k: c.get(k)
@@ -206,6 +207,7 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
                 "held_out_loss",
                 "window",
                 "at_null",
+                "fit_window_gain",
             )
         }
         for n, c in diag["candidates"].items()

@@ -183,6 +183,8 @@ def test_drag_is_named_and_the_driver_prints_json(tiny):
         and diag["candidates"]["ground_plane"]["window"] == "fit"
     )
     assert len(ff["frames"]) >= 2 and max(ff["frames"]) < ff["hit_frame"], ff
+    # drag's fitted value also explains the twin's whole fit window (rebounds included)
+    assert diag["candidates"]["air_drag"]["fit_window_gain"] >= 0.3, diag["candidates"]["air_drag"]
     res = last["residuals"]  # drag 4/s: the images fall slower than the base model, and drag fits that
     assert res["gravity_ratio_observed"] < res["gravity_ratio_simulated"] - 0.2, res
     assert 2.0 < res["drag_per_s_observed"] < 6.0 and res["drag_per_s_simulated"] < 1.0, res

@@ -339,7 +339,9 @@ def judge_in_free_flight(cand, flight, ev, refit_state, ctx, base, floor, dc) ->
     """A free-flight candidate (gravity, drag) fitted on the fitting views' free-flight frames from
     the refit base, its gain the share of the base's free-flight discrepancy above that window's
     floor it removes on the held-out views; no controls refitted (the fall does not see them).
-    Its future loss is its whole rollout's (the refit base with the fitted value)."""
+    Its future loss is its whole rollout's (the refit base with the fitted value), and so is its
+    `fit_window_gain`: the held-out gain over the whole fit window, rebounds included, where weaker
+    gravity (a slower rise) and drag (a faster one) part ways; recorded, not yet used to decide."""
     from sgdr.discrepancy.candidates import fit_candidate
 
     saved_ctx = ctx.values
@@ -355,12 +357,15 @@ def judge_in_free_flight(cand, flight, ev, refit_state, ctx, base, floor, dc) ->
     d_future = None
     if ev.obs_future is not None:
         d_future = base["d_future"] if at_null else ev.d(settings, ev.obs_future, repl)
+    d_window = base["d_held_out"] if at_null else ev.d(settings, ev.obs_held, repl)
     if at_null:
         fit = replace(fit, d_fit=fb["d_fit"], d_held_out=fb["d_held_out"])
     fit = replace(fit, d_future=d_future)
     held, future = (fb["d_held_out"], flight["floor"]), (base["d_future"], floor["future"])
-    record = candidate_record(cand, fit, held, future, float(dc.floor_margin), None, gain_over_asset_fit=None)
-    return {**record, "at_null": at_null, "from": "refit", "window": "free_flight"}
+    margin = float(dc.floor_margin)
+    window_gain = excess_gain(d_window, base["d_held_out"], floor["held_out"], margin)
+    record = candidate_record(cand, fit, held, future, margin, None, gain_over_asset_fit=None)
+    return {**record, "at_null": at_null, "from": "refit", "window": "free_flight", "fit_window_gain": window_gain}
 
 
 def candidate_record(cand, fit, held: tuple, future: tuple, margin: float, joint: dict | None, **extra) -> dict:

@@ -34,6 +34,9 @@ def test_ranks_and_summary():
     assert s["cases"] == 4 and s["coverage_90"] == 0.75
     assert len(s["rank_histogram"]) == N_BINS and sum(s["rank_histogram"]) == 3
     assert s["rank_histogram"][0] == 1 and s["rank_histogram"][-1] == 1
+    assert s["coverage_50"] == pytest.approx(1 / 3)  # only the rank 0.5 is in the central half
+    wide = [{"inside": {"a": True}, "rank": {"a": r}} for r in (0.3, 0.4, 0.5, 0.6, 0.7)]
+    assert summarise(wide, ["a"])["a"]["coverage_50"] == 1.0  # too wide: every truth near the middle
 
 
 def test_a_record_of_another_sampler_setup_is_refused_before_any_work(tmp_path):

@@ -55,6 +55,14 @@ def threshold(dc, name: str) -> float:
     return float((dc.min_gain_by_candidate or {}).get(name, dc.min_gain))
 
 
+def _choice_pool(gains: dict, thresholds: dict, first=()) -> list[str]:
+    """The candidates a cause is chosen from: those at or above their own threshold, and of those
+    only the ones in `first` (the free-flight candidates) when any of them passes."""
+    passing = [n for n, g in gains.items() if g is not None and np.isfinite(g) and g >= thresholds[n]]
+    early = [n for n in passing if n in set(first)]
+    return early or passing
+
+
 def decide(gains: dict, thresholds: dict, first=()) -> str | None:
     """The candidate named: the largest gain among those at or above their own threshold (None:
     no candidate passes, the cause is "none"). Candidates in `first` (the free-flight ones) come
@@ -62,10 +70,8 @@ def decide(gains: dict, thresholds: dict, first=()) -> str | None:
     the contact after it, so a contact-borne candidate may fit its consequence over the whole
     window (the MPM apple with drag 2 /s: a ground raised 5% of its size gained 0.51, drag 0.42 in
     free flight); nothing that acts at contact changes the free flight."""
-    passing = [n for n, g in gains.items() if g is not None and np.isfinite(g) and g >= thresholds[n]]
-    first = set(first)
-    early = [n for n in passing if n in first]
-    return max(early or passing, key=lambda n: gains[n]) if passing else None
+    pool = _choice_pool(gains, thresholds, first)
+    return max(pool, key=lambda n: gains[n]) if pool else None
 
 
 def rivals(gains: dict, thresholds: dict, best: str | None, causes: dict, margin: float, first=()) -> list[str]:
@@ -77,11 +83,12 @@ def rivals(gains: dict, thresholds: dict, best: str | None, causes: dict, margin
     so the named cause is then a coin flip the report must not hide."""
     if best is None:
         return []
-    passing = [n for n, g in gains.items() if g is not None and np.isfinite(g) and g >= thresholds[n]]
-    early = [n for n in passing if n in set(first)]
-    pool = early if best in early else passing
     return sorted(
-        (n for n in pool if causes[n] != causes[best] and gains[best] - gains[n] < float(margin)),
+        (
+            n
+            for n in _choice_pool(gains, thresholds, first)
+            if causes[n] != causes[best] and gains[best] - gains[n] < float(margin)
+        ),
         key=lambda n: -gains[n],
     )
 

@@ -196,6 +196,7 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
     diag = json.loads((run_dir / "diagnose" / "diagnosis.json").read_text())
     rec.update(status="ok", cause=diag["cause"], correct=diag["cause"] == case.expected, truth=diag.get("truth", {}))
     rec["ambiguous_with"] = diag.get("ambiguous_with", [])
+    rec["settled_from"] = diag.get("settled_from")
     rec["candidates"] = {
         n: {
             k: c.get(k)
@@ -286,10 +287,11 @@ def redecide(rec: dict, thresholds: dict | None = None) -> str:
 
 def redecide_with_rivals(rec: dict, thresholds: dict | None = None) -> tuple[str, list[str]]:
     """`redecide`'s cause and the other causes that fit as well (`sgdr.discrepancy.run.rivals`,
-    the default `diagnose.mimic_margin`)."""
+    the default `diagnose.mimic_margin`), after the whole fit window settles a tie between
+    free-flight mimics (`settle_mimics`; records without `fit_window_gain` stay tied)."""
     from sgdr.discrepancy.candidates import CANDIDATES
     from sgdr.discrepancy.config import DiagnoseConfig
-    from sgdr.discrepancy.run import decide, rivals
+    from sgdr.discrepancy.run import decide, rivals, settle_mimics
 
     thresholds = thresholds or method_thresholds(rec.get("method", "spring_gaus"))
     gains = {n: c["gain"] for n, c in rec["candidates"].items()}
@@ -298,6 +300,8 @@ def redecide_with_rivals(rec: dict, thresholds: dict | None = None) -> tuple[str
     best = decide(gains, per, free)
     causes = {n: CANDIDATES.get_named(n).cause for n in gains}
     rival = rivals(gains, per, best, causes, DiagnoseConfig.mimic_margin, free)
+    window = {n: c.get("fit_window_gain") for n, c in rec["candidates"].items()}
+    best, rival = settle_mimics(best, rival, window, DiagnoseConfig.mimic_window_margin)
     return ("none" if best is None else causes[best]), [causes[n] for n in rival]
 
 

@@ -181,3 +181,27 @@ def test_a_cause_with_a_rival_as_good_is_flagged_ambiguous(monkeypatch):
     assert s["injected_named_unambiguous_share"] == pytest.approx(1 / 3)
     assert s["named_but_ambiguous"] == ["a-air_drag"]  # the torus, named wrongly, is a miss
     assert "≈ air_drag" in S.markdown({"t": rec})
+
+
+def test_the_whole_fit_window_settles_a_tie_between_free_flight_mimics(monkeypatch):
+    """Gravity and drag tied on the free fall: the one whose free-flight value also explains the
+    whole fit window by diagnose.mimic_window_margin is named, without the ambiguity; a closer
+    window gain, a missing one, or a rival outside free flight leaves the tie as it was."""
+    from sgdr.discrepancy.run import settle_mimics
+
+    w = {"gravity": 0.737, "air_drag": 0.933}
+    assert settle_mimics("gravity", ["air_drag"], w, 0.1) == ("air_drag", [])
+    assert settle_mimics("air_drag", ["gravity"], w, 0.1) == ("air_drag", [])
+    assert settle_mimics("gravity", ["air_drag"], w, 0.25) == ("gravity", ["air_drag"])  # within the margin
+    assert settle_mimics("gravity", ["air_drag"], {"gravity": 0.7, "air_drag": None}, 0.1) == ("gravity", ["air_drag"])
+    assert settle_mimics("ground_plane", ["gravity"], w, 0.1) == ("ground_plane", ["gravity"])  # no window gain
+    assert settle_mimics("gravity", [], w, 0.1) == ("gravity", [])
+    assert settle_mimics(None, [], w, 0.1) == (None, [])
+    th = {"gravity": 0.15, "air_drag": 0.35}
+    monkeypatch.setattr(S, "method_thresholds", lambda method: th)
+    rec = _rec("t-air_drag", "air_drag", "gravity", {"gravity": 0.626, "air_drag": 0.604})
+    for n, g in w.items():
+        rec["candidates"][n].update(window="free_flight", fit_window_gain=g)
+    assert S.redecide_with_rivals(rec) == ("air_drag", [])
+    rec["candidates"]["air_drag"]["fit_window_gain"] = 0.8
+    assert S.redecide_with_rivals(rec) == ("gravity", ["air_drag"])

@@ -65,6 +65,9 @@ class DiagnoseConfig:
     # another cause whose gain is within this of the named one's is reported as fitting as well
     # (diagnosis.json "ambiguous_with"; run.rivals): mimics such as weaker gravity and air drag
     mimic_margin: float = 0.05
+    # ... unless one of the free-flight mimics beats the others by this much over the whole fit
+    # window (their fit_window_gain; run.settle_mimics); 1 leaves every such tie ambiguous
+    mimic_window_margin: float = 0.1
     residuals: bool = True  # also the residual diagnostics of the base fit (residuals.json, residual_*.png)
     residual_grid: int = 48  # blocks on the long side of the spatial residual maps (full resolution when larger)
     residual_views: int = 4  # views shown in residual_spatial.png (those that disagree most)
@@ -87,6 +90,7 @@ CHECKS = {
     "floor_margin": between(0.0, 1.0),
     "min_gain": between(0.0, 1.0),
     "mimic_margin": between(0.0, 1.0),
+    "mimic_window_margin": between(0.0, 1.0),
     "min_gain_by_candidate": dict_of(between(0.0, 1.0), keys=choice("sgdr.discrepancy.candidates:CANDIDATES")),
     "residual_grid": at_least(4),
     "residual_views": at_least(1),

@@ -93,6 +93,28 @@ def rivals(gains: dict, thresholds: dict, best: str | None, causes: dict, margin
     )
 
 
+def settle_mimics(
+    best: str | None, rival: list[str], window_gains: dict, margin: float
+) -> tuple[str | None, list[str]]:
+    """The named candidate and its rivals after the whole fit window has had its say: when the
+    named one and every rival are free-flight candidates with a `fit_window_gain` (each one's
+    held-out gain over the whole fit window with its free-flight value), and one of them beats
+    every other there by at least `margin` (`diagnose.mimic_window_margin`), that one is named
+    and the ambiguity is settled; else nothing changes. Weaker gravity and air drag fit a few
+    frames of fall alike but part ways after a bounce: drag slows the rise more than the fall, a
+    weaker gravity slows both alike (the tiny drag twin: drag 0.933, gravity 0.737)."""
+    if best is None or not rival:
+        return best, rival
+    group = [best, *rival]
+    w = {n: window_gains.get(n) for n in group}
+    if any(v is None or not np.isfinite(v) for v in w.values()):
+        return best, rival
+    top = max(group, key=lambda n: w[n])
+    if all(w[top] - w[n] >= float(margin) for n in group if n != top):
+        return top, []
+    return best, rival
+
+
 def _same_sequence(a, b) -> bool:
     try:
         return Path(a).resolve() == Path(b).resolve()
@@ -233,6 +255,9 @@ def run_diagnosis(cfg) -> dict:
     best = decide(gains, thresholds, free)
     causes = {n: c["cause"] for n, c in candidates.items()}
     rival = rivals(gains, thresholds, best, causes, dc.mimic_margin, free)
+    named_first = best
+    window_gains = {n: c.get("fit_window_gain") for n, c in candidates.items()}
+    best, rival = settle_mimics(best, rival, window_gains, dc.mimic_window_margin)
     for name, c in candidates.items():
         c["min_gain"] = thresholds[name]
         c["decision"] = "cause" if name == best else "as good" if name in rival else "rejected"
@@ -247,6 +272,10 @@ def run_diagnosis(cfg) -> dict:
         "rebase": rebase,
         "min_gain": float(dc.min_gain),
         "mimic_margin": float(dc.mimic_margin),
+        "mimic_window_margin": float(dc.mimic_window_margin),
+        # the free-flight mimics' tie settled by their gains over the whole fit window
+        # (settle_mimics): the one named by the free-flight gains alone, else None
+        "settled_from": named_first if best != named_first else None,
         "discrepancy": {"measure": dc.discrepancy, "unit": measure.unit},
         "v0_refit": bool(own),
         "fitting_views": [seq.cameras[v].name for v in fit_views],

@@ -213,3 +213,41 @@ def test_the_sampler_contract_is_the_same_batched_or_looped():
     (pb, sb), (pl, sl) = runs["batched"], runs["loop"]
     assert list(sb) == list(sl) == [True, True, False, True, True]
     assert np.nanmax(np.abs(pb[sb] - pl[sl])) < 1e-5 * SIZE
+
+
+def test_samples_past_the_bound_are_retried_batched_with_doubled_substeps(monkeypatch):
+    """posterior.rollout=batched re-runs a sample stiffer than n_t allows in a batch of its own
+    with n_t doubled (the single rollout's remedy), not one by one: it equals the loop's
+    rollout; one beyond physics.max_substeps and one with a NaN parameter stay unstable."""
+    import sgdr.posterior.rollouts as R
+
+    cfg, model, params = asset(contact="coulomb")
+    cfg.retry_on_nan, cfg.max_substeps = True, 4 * N_SUB
+    base = {
+        "log10_k": to_numpy(params.log10_k).astype(float),
+        "kappa": 0.0,
+        "friction": 0.5,
+        "restitution": 0.0,
+        "v0": np.array([0.3, 0.0, -1.0]),
+        "gravity": np.array([0.0, 0.0, -9.8]),
+    }
+    probe = batched_rollout(model, params, {"dlog10_k": np.array([0.0])}, GROUND, 2, DT, N_SUB, cfg)
+    need0 = int(probe.need_substeps[0])
+    assert need0 <= N_SUB
+    # k scales the bound's n_t by sqrt(10^shift): past n_t, within 2 n_t; past 4 n_t
+    mid = 2 * np.log10(1.5 * N_SUB / need0)
+    theta = {"log10_k_shift": np.array([0.0, mid, mid + 1.5, 0.1]), "kappa": np.array([0.0, 0.0, 0.0, np.nan])}
+    need = batched_rollout(
+        model, params, {"dlog10_k": theta["log10_k_shift"][:3]}, GROUND, 2, DT, N_SUB, cfg
+    ).need_substeps
+    assert N_SUB < need[1] <= 2 * N_SUB and need[2] > 4 * N_SUB, need
+    loop = R.loop_rollout(model, base, {k: v[:3] for k, v in theta.items()}, GROUND, N_FRAMES, DT, N_SUB, cfg)
+    calls = []
+    real = R._batches
+    monkeypatch.setattr(R, "loop_rollout", lambda *a, **k: pytest.fail("the batched rollout fell back to the loop"))
+    monkeypatch.setattr(R, "_batches", lambda *a, **k: calls.append(a[3]) or real(*a, **k))
+    pos, stable = R.ROLLOUTS["batched"](model, base, theta, GROUND, N_FRAMES, DT, N_SUB, cfg)
+    assert stable.tolist() == [True, True, False, False] and loop[1].tolist() == [True, True, False]
+    assert calls == [N_SUB, 2 * N_SUB]  # the sample beyond max_substeps and the NaN one are not run again
+    np.testing.assert_allclose(pos[:2], loop[0][:2], atol=1e-4 * SIZE, rtol=0)  # float32, 2 n_t substeps
+    assert np.isnan(pos[~stable]).all()

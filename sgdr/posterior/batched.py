@@ -32,6 +32,8 @@ Forward only (`dr.suspend_grad`). A batched sample equals the single `sgdr.physi
 with the same parameters and n_substeps to float32 rounding (tests/test_posterior_batched.py).
 Unlike `rollout`, a batch never retries with more substeps (one n_t for all samples); an
 unstable sample is flagged instead, and does not disturb the others (no springs join copies).
+The posterior's "batched" rollout (`sgdr.posterior.rollouts`) re-runs the flagged samples in
+batches of their own with doubled substeps, as `rollout` would.
 """
 
 from __future__ import annotations
@@ -131,13 +133,19 @@ class BatchedRollout:
     stable: [S] bool, False where the sample is unstable (the sampler's log-probability -inf);
     cfl_ok: [S] bool, the stability bound dt <= physics.cfl_factor sqrt(m_i / k_eff,i) held;
     finite: [S] bool, all positions and velocities stayed finite through the rollout;
-    n_substeps: the substeps per frame every sample used."""
+    n_substeps: the substeps per frame every sample used;
+    need_substeps: [S] int, the fewest substeps the sample's stability bound allows
+      (`sgdr.physics.simulate.stable_substeps`; NEVER for NaN/inf parameters)."""
 
     positions: np.ndarray
     stable: np.ndarray
     cfl_ok: np.ndarray
     finite: np.ndarray
     n_substeps: int
+    need_substeps: np.ndarray
+
+
+NEVER = np.iinfo(np.int64).max  # need_substeps of a sample no substep count makes stable
 
 
 def batched_rollout(
@@ -188,10 +196,11 @@ def batched_rollout(
     for name in ("kappa", "friction", "restitution", "zeta0", "v0"):
         finite_params &= np.isfinite(val[name].reshape(S, -1)).all(axis=1)
     # the single rollout's pre-check, per sample (effective_stiffness reads log10_k and kappa only)
-    cfl_ok = np.zeros(S, dtype=bool)
+    need = np.full(S, NEVER, dtype=np.int64)
     for s in np.flatnonzero(finite_params):
         view = SimpleNamespace(log10_k=log10_k[s].astype(np.float64), kappa=float(val["kappa"][s]))
-        cfl_ok[s] = stable_substeps(model, view, dt_frame, cfg) <= n_sub
+        need[s] = stable_substeps(model, view, dt_frame, cfg)
+    cfl_ok = need <= n_sub
     # NaN/inf parameters would still run harmlessly in their own copy; zeros keep them finite
     safe = {name: np.where(np.isfinite(a), a, 0.0) for name, a in val.items()}
     log10_k = np.where(np.isfinite(log10_k), log10_k, np.float32(0.0))
@@ -227,7 +236,9 @@ def batched_rollout(
     positions = positions.reshape(n_frames, 3, S, n).transpose(2, 0, 3, 1).copy()
     stable = finite_params & cfl_ok & finite
     positions[~stable] = np.nan
-    return BatchedRollout(positions=positions, stable=stable, cfl_ok=cfl_ok, finite=finite, n_substeps=n_sub)
+    return BatchedRollout(
+        positions=positions, stable=stable, cfl_ok=cfl_ok, finite=finite, n_substeps=n_sub, need_substeps=need
+    )
 
 
 def batched_centres(binding, positions: np.ndarray) -> np.ndarray:

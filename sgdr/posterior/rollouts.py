@@ -98,30 +98,51 @@ def batched_samples_rollout(
     model, base_params: dict, samples: dict, ground, n_frames: int, dt_frame: float, n_substeps: int, cfg
 ):
     """(positions [S, T, N_A, 3], stable [S]): the same contract through
-    `sgdr.posterior.batched.batched_rollout`, `BATCH` samples per program.
+    `sgdr.posterior.batched.batched_rollout`, at most `BATCH` samples per program.
 
-    The batched program runs every sample at the asset's n_t and does not retry: a sample stiffer
+    One batched program runs every sample at the asset's n_t and does not retry: a sample stiffer
     than n_t's stability bound comes back unstable. On the small torus the identified asset sits
     at that bound (every sample with a log10 k shift above ~ +0.07 was unstable), which would
-    cut the posterior off at the MAP's stiffness. Those samples are therefore re-run by
-    `loop_rollout`, which doubles the substeps as physics.retry_on_nan allows, so both rollouts
-    give the same answer for every sample (a sample unstable there too stays unstable)."""
+    cut the posterior off at the MAP's stiffness. The unstable samples are therefore re-run,
+    batched again, with the single rollout's remedy (`sgdr.physics.simulate.rollout`): n_t
+    doubled while physics.retry_on_nan and physics.max_substeps allow, each sample from the
+    first doubling its stability bound allows, again when it still blows up. So both rollouts
+    give the same answer for every sample (a sample unstable there too stays unstable). Before,
+    these samples went through `loop_rollout` one by one: the tiny SBC case with the stiffest
+    truth took 2-3x as long as the others."""
+    from sgdr.physics.simulate import doubled_substeps
     from sgdr.pipeline.predict import physical_params
-    from sgdr.posterior.batched import batched_rollout
 
     s = sample_count(samples)
     params = physical_params(model, cfg, base_params)
     mapped = {("dlog10_k" if k == "log10_k_shift" else k): np.asarray(v, float) for k, v in samples.items()}
-    positions, stable = [], []
-    for lo in range(0, s, BATCH):
-        chunk = {k: v[lo : lo + BATCH] for k, v in mapped.items()}
-        res = batched_rollout(model, params, chunk, ground, int(n_frames), float(dt_frame), int(n_substeps), cfg)
-        positions.append(res.positions)
-        stable.append(res.stable)
-    positions, stable = np.concatenate(positions), np.concatenate(stable)
-    redo = np.flatnonzero(~stable)
-    if redo.size and cfg.retry_on_nan:
-        sub = {k: np.asarray(v)[redo] for k, v in samples.items()}
-        pos_r, stable_r = loop_rollout(model, base_params, sub, ground, n_frames, dt_frame, n_substeps, cfg)
-        positions[redo], stable[redo] = pos_r, stable_r
+    run = (model, params, ground, int(n_frames), float(dt_frame), cfg)
+    positions, stable, need = _batches(run, mapped, np.arange(s), int(n_substeps), pad=False)
+    n_sub = int(n_substeps)
+    while cfg.retry_on_nan and not stable.all() and (more := doubled_substeps(n_sub, cfg)):
+        n_sub = more
+        redo = np.flatnonzero(~stable & (need <= n_sub))
+        if redo.size:
+            positions[redo], stable[redo], _ = _batches(run, mapped, redo, n_sub, pad=True)
     return positions, stable
+
+
+def _batches(run: tuple, mapped: dict, idx: np.ndarray, n_substeps: int, pad: bool):
+    """positions, stable and need_substeps of the samples `idx` of `mapped`, `BATCH` per
+    program. pad: a last, partial batch is padded (repeating its last sample) to the next power
+    of two, so that retries of a varying few samples replay a handful of recorded widths
+    instead of recording one per count (the sampler's own calls have one width)."""
+    from sgdr.posterior.batched import batched_rollout
+
+    model, params, ground, n_frames, dt_frame, cfg = run
+    out = [], [], []
+    for lo in range(0, idx.size, BATCH):
+        chunk = idx[lo : lo + BATCH]
+        width = min(BATCH, 1 << int(np.ceil(np.log2(chunk.size)))) if pad else chunk.size
+        padded = np.concatenate([chunk, np.full(width - chunk.size, chunk[-1])])
+        res = batched_rollout(
+            model, params, {k: v[padded] for k, v in mapped.items()}, ground, n_frames, dt_frame, n_substeps, cfg
+        )
+        for acc, a in zip(out, (res.positions, res.stable, res.need_substeps)):
+            acc.append(a[: chunk.size])
+    return tuple(np.concatenate(a) for a in out)

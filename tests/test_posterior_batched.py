@@ -191,13 +191,9 @@ def test_batched_centres_equal_binding_per_frame(form):
     assert np.abs(centres[:, -1] - centres[:, 0]).max() > 1e-2
 
 
-def test_the_sampler_contract_is_the_same_batched_or_looped():
-    """posterior.rollout=batched and =loop return the same positions and stability for the
-    sampler's sample dict (log10_k_shift relative to the asset's plain values)."""
-    from sgdr.posterior.rollouts import ROLLOUTS
-
-    cfg, model, params = asset(contact="coulomb")
-    base = {
+def plain_values(params) -> dict:
+    """`asset()`'s parameters as the sampler's rollouts take them (`Asset.values`)."""
+    return {
         "log10_k": to_numpy(params.log10_k).astype(float),
         "kappa": 0.0,
         "friction": 0.5,
@@ -205,6 +201,15 @@ def test_the_sampler_contract_is_the_same_batched_or_looped():
         "v0": np.array([0.3, 0.0, -1.0]),
         "gravity": np.array([0.0, 0.0, -9.8]),
     }
+
+
+def test_the_sampler_contract_is_the_same_batched_or_looped():
+    """posterior.rollout=batched and =loop return the same positions and stability for the
+    sampler's sample dict (log10_k_shift relative to the asset's plain values)."""
+    from sgdr.posterior.rollouts import ROLLOUTS
+
+    cfg, model, params = asset(contact="coulomb")
+    base = plain_values(params)
     s = samples(5)
     theta = {"log10_k_shift": s["dlog10_k"], "kappa": s["kappa"], "friction": s["friction"]}
     theta["restitution"] = s["restitution"]
@@ -223,14 +228,7 @@ def test_samples_past_the_bound_are_retried_batched_with_doubled_substeps(monkey
 
     cfg, model, params = asset(contact="coulomb")
     cfg.retry_on_nan, cfg.max_substeps = True, 4 * N_SUB
-    base = {
-        "log10_k": to_numpy(params.log10_k).astype(float),
-        "kappa": 0.0,
-        "friction": 0.5,
-        "restitution": 0.0,
-        "v0": np.array([0.3, 0.0, -1.0]),
-        "gravity": np.array([0.0, 0.0, -9.8]),
-    }
+    base = plain_values(params)
     probe = batched_rollout(model, params, {"dlog10_k": np.array([0.0])}, GROUND, 2, DT, N_SUB, cfg)
     need0 = int(probe.need_substeps[0])
     assert need0 <= N_SUB

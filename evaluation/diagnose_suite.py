@@ -301,7 +301,7 @@ def redecide_with_rivals(rec: dict, thresholds: dict | None = None) -> tuple[str
     causes = {n: CANDIDATES.get_named(n).cause for n in gains}
     rival = rivals(gains, per, best, causes, DiagnoseConfig.mimic_margin, free)
     window = {n: c.get("fit_window_gain") for n, c in rec["candidates"].items()}
-    best, rival = settle_mimics(best, rival, window, DiagnoseConfig.mimic_window_margin)
+    best, rival = settle_mimics(best, rival, window, DiagnoseConfig.mimic_window_margin, per)
     return ("none" if best is None else causes[best]), [causes[n] for n in rival]
 
 

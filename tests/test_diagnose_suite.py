@@ -185,19 +185,24 @@ def test_a_cause_with_a_rival_as_good_is_flagged_ambiguous(monkeypatch):
 
 def test_the_whole_fit_window_settles_a_tie_between_free_flight_mimics(monkeypatch):
     """Gravity and drag tied on the free fall: the one whose free-flight value also explains the
-    whole fit window by diagnose.mimic_window_margin is named, without the ambiguity; a closer
-    window gain, a missing one, or a rival outside free flight leaves the tie as it was."""
+    whole fit window (at least its threshold there) by diagnose.mimic_window_margin is named,
+    without the ambiguity; a closer window gain, a missing or a negative one, or a rival outside
+    free flight leaves the tie as it was."""
     from sgdr.discrepancy.run import settle_mimics
 
     w = {"gravity": 0.737, "air_drag": 0.933}
-    assert settle_mimics("gravity", ["air_drag"], w, 0.1) == ("air_drag", [])
-    assert settle_mimics("air_drag", ["gravity"], w, 0.1) == ("air_drag", [])
-    assert settle_mimics("gravity", ["air_drag"], w, 0.25) == ("gravity", ["air_drag"])  # within the margin
-    assert settle_mimics("gravity", ["air_drag"], {"gravity": 0.7, "air_drag": None}, 0.1) == ("gravity", ["air_drag"])
-    assert settle_mimics("ground_plane", ["gravity"], w, 0.1) == ("ground_plane", ["gravity"])  # no window gain
-    assert settle_mimics("gravity", [], w, 0.1) == ("gravity", [])
-    assert settle_mimics(None, [], w, 0.1) == (None, [])
     th = {"gravity": 0.15, "air_drag": 0.35}
+    tie = ("gravity", ["air_drag"])
+    assert settle_mimics("gravity", ["air_drag"], w, 0.1, th) == ("air_drag", [])
+    assert settle_mimics("air_drag", ["gravity"], w, 0.1, th) == ("air_drag", [])
+    assert settle_mimics(*tie, w, 0.25, th) == tie  # within the margin
+    assert settle_mimics(*tie, {"gravity": 0.7, "air_drag": None}, 0.1, th) == tie
+    # hurting the window less is no evidence: the MPM torus with drag, both window gains negative
+    assert settle_mimics(*tie, {"gravity": -0.64, "air_drag": -1.74}, 0.1, th) == tie
+    assert settle_mimics(*tie, {"gravity": 0.3, "air_drag": 0.0}, 0.1, {"gravity": 0.35}) == tie  # below its own
+    assert settle_mimics("ground_plane", ["gravity"], w, 0.1, th) == ("ground_plane", ["gravity"])  # no window gain
+    assert settle_mimics("gravity", [], w, 0.1, th) == ("gravity", [])
+    assert settle_mimics(None, [], w, 0.1, th) == (None, [])
     monkeypatch.setattr(S, "method_thresholds", lambda method: th)
     rec = _rec("t-air_drag", "air_drag", "gravity", {"gravity": 0.626, "air_drag": 0.604})
     for n, g in w.items():

@@ -94,15 +94,18 @@ def rivals(gains: dict, thresholds: dict, best: str | None, causes: dict, margin
 
 
 def settle_mimics(
-    best: str | None, rival: list[str], window_gains: dict, margin: float
+    best: str | None, rival: list[str], window_gains: dict, margin: float, thresholds: dict
 ) -> tuple[str | None, list[str]]:
     """The named candidate and its rivals after the whole fit window has had its say: when the
     named one and every rival are free-flight candidates with a `fit_window_gain` (each one's
-    held-out gain over the whole fit window with its free-flight value), and one of them beats
-    every other there by at least `margin` (`diagnose.mimic_window_margin`), that one is named
-    and the ambiguity is settled; else nothing changes. Weaker gravity and air drag fit a few
-    frames of fall alike but part ways after a bounce: drag slows the rise more than the fall, a
-    weaker gravity slows both alike (the tiny drag twin: drag 0.933, gravity 0.737)."""
+    held-out gain over the whole fit window with its free-flight value), and one of them both
+    explains the whole window (its window gain at least its own threshold) and beats every other
+    there by at least `margin` (`diagnose.mimic_window_margin`), that one is named and the
+    ambiguity is settled; else nothing changes. Weaker gravity and air drag fit a few frames of
+    fall alike but part ways after a bounce: drag slows the rise more than the fall, a weaker
+    gravity slows both alike (the tiny drag twin: drag 0.933, gravity 0.737). On MPM data the
+    contact misfit can make both window gains negative; the one that hurts less is then no
+    evidence (the MPM torus with drag 2 /s: gravity -0.64, drag -1.74), hence the threshold."""
     if best is None or not rival:
         return best, rival
     group = [best, *rival]
@@ -110,7 +113,7 @@ def settle_mimics(
     if any(v is None or not np.isfinite(v) for v in w.values()):
         return best, rival
     top = max(group, key=lambda n: w[n])
-    if all(w[top] - w[n] >= float(margin) for n in group if n != top):
+    if w[top] >= thresholds[top] and all(w[top] - w[n] >= float(margin) for n in group if n != top):
         return top, []
     return best, rival
 
@@ -257,7 +260,7 @@ def run_diagnosis(cfg) -> dict:
     rival = rivals(gains, thresholds, best, causes, dc.mimic_margin, free)
     named_first = best
     window_gains = {n: c.get("fit_window_gain") for n, c in candidates.items()}
-    best, rival = settle_mimics(best, rival, window_gains, dc.mimic_window_margin)
+    best, rival = settle_mimics(best, rival, window_gains, dc.mimic_window_margin, thresholds)
     for name, c in candidates.items():
         c["min_gain"] = thresholds[name]
         c["decision"] = "cause" if name == best else "as good" if name in rival else "rejected"

@@ -196,7 +196,7 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
     diag = json.loads((run_dir / "diagnose" / "diagnosis.json").read_text())
     rec.update(status="ok", cause=diag["cause"], correct=diag["cause"] == case.expected, truth=diag.get("truth", {}))
     rec["ambiguous_with"] = diag.get("ambiguous_with", [])
-    rec["settled_from"] = diag.get("settled_from")
+    rec["settled_among"] = diag.get("settled_among", [])
     rec["candidates"] = {
         n: {
             k: c.get(k)

@@ -235,11 +235,12 @@ def test_record_is_strict_json_and_the_plots_are_written(tmp_path, n_views, n_fr
     mimic = {**diagnosis, "cause": "gravity", "ambiguous_with": ["air_drag"], "mimic_margin": 0.05}
     assert "<b>Ambiguous:</b> air_drag fits the data as well" in section(mimic, None, None).body
     cand = {"changes": "", "values": {}, "gain": 0.6, "future_gain": None}
-    settled = {**diagnosis, "cause": "air_drag", "settled_from": "gravity", "mimic_window_margin": 0.1,
+    settled = {**diagnosis, "cause": "air_drag", "settled_among": ["gravity", "air_drag"], "mimic_window_margin": 0.1,
                "candidates": {"gravity": {**cand, "decision": "rejected", "fit_window_gain": 0.737},
                               "air_drag": {**cand, "decision": "cause", "fit_window_gain": 0.933}}}  # fmt: skip
     body = section(settled, None, None).body
-    assert "Mimics told apart" in body and "air_drag explains the whole fit window better" in body
+    assert "Mimics told apart:</b> gravity fit the free fall" in body
+    assert "air_drag explains the whole fit window better" in body
     assert "0.933 against 0.737" in body and "discrepancy-ambiguous" not in body
 
 

@@ -143,15 +143,17 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
             f"{_g(diagnosis.get('mimic_margin'))} of the named cause's): these data do not tell them apart. "
             "Frames that separate them (e.g. a rebound, or sideways motion for air drag) would.</p>"
         )
-    settled = diagnosis.get("settled_from")
-    if settled:
-        named = next((n for n, c in diagnosis["candidates"].items() if c["decision"] == "cause"), None)
-        cw = {n: _g(diagnosis["candidates"][n].get("fit_window_gain")) for n in (settled, named) if n}
+    tie = diagnosis.get("settled_among") or []
+    named = next((n for n, c in diagnosis["candidates"].items() if c["decision"] == "cause"), None)
+    if tie and named in tie:
+        others = [n for n in tie if n != named]
+        window = lambda n: _g(diagnosis["candidates"][n].get("fit_window_gain"))  # noqa: E731
         body.append(
-            f'<p id="discrepancy-settled"><b>Mimics told apart:</b> {esc(settled)} fits the free fall as well as '
-            f"{esc(named)}, but with their free-flight values {esc(named)} explains the whole fit window better "
-            f"(held-out gain {cw.get(named)} against {cw.get(settled)}; margin "
-            f"{_g(diagnosis.get('mimic_window_margin'))}): a bounce's rise and fall part them.</p>"
+            f'<p id="discrepancy-settled"><b>Mimics told apart:</b> {esc(", ".join(others))} fit the free fall '
+            f"about as well as {esc(named)}, but with their free-flight values {esc(named)} explains the whole "
+            f"fit window better (held-out gain {window(named)} against "
+            f"{', '.join(window(n) for n in others)}; margin {_g(diagnosis.get('mimic_window_margin'))}): "
+            "a bounce's rise and fall part them.</p>"
         )
     rows = [
         [n, c["changes"], ", ".join(f"{k} = {_g(v)}" for k, v in (c["values"] or {}).items()),

@@ -258,7 +258,7 @@ def run_diagnosis(cfg) -> dict:
     best = decide(gains, thresholds, free)
     causes = {n: c["cause"] for n, c in candidates.items()}
     rival = rivals(gains, thresholds, best, causes, dc.mimic_margin, free)
-    named_first = best
+    tie = [best, *rival] if rival else []
     window_gains = {n: c.get("fit_window_gain") for n, c in candidates.items()}
     best, rival = settle_mimics(best, rival, window_gains, dc.mimic_window_margin, thresholds)
     for name, c in candidates.items():
@@ -276,9 +276,9 @@ def run_diagnosis(cfg) -> dict:
         "min_gain": float(dc.min_gain),
         "mimic_margin": float(dc.mimic_margin),
         "mimic_window_margin": float(dc.mimic_window_margin),
-        # the free-flight mimics' tie settled by their gains over the whole fit window
-        # (settle_mimics): the one named by the free-flight gains alone, else None
-        "settled_from": named_first if best != named_first else None,
+        # the free-flight mimics a tie was settled between by their gains over the whole fit
+        # window (settle_mimics), the named one first in the free-flight gains' order; else []
+        "settled_among": tie if tie and not rival else [],
         "discrepancy": {"measure": dc.discrepancy, "unit": measure.unit},
         "v0_refit": bool(own),
         "fitting_views": [seq.cameras[v].name for v in fit_views],

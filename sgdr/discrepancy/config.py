@@ -66,7 +66,8 @@ class DiagnoseConfig:
     # (diagnosis.json "ambiguous_with"; run.rivals): mimics such as weaker gravity and air drag
     mimic_margin: float = 0.05
     # ... unless one of the free-flight mimics beats the others by this much over the whole fit
-    # window (their fit_window_gain; run.settle_mimics); 1 leaves every such tie ambiguous
+    # window (their fit_window_gain; run.settle_mimics) and reaches its own threshold there; a larger
+    # margin settles fewer ties
     mimic_window_margin: float = 0.1
     residuals: bool = True  # also the residual diagnostics of the base fit (residuals.json, residual_*.png)
     residual_grid: int = 48  # blocks on the long side of the spatial residual maps (full resolution when larger)

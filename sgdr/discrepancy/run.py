@@ -59,7 +59,8 @@ def _choice_pool(gains: dict, thresholds: dict, first=()) -> list[str]:
     """The candidates a cause is chosen from: those at or above their own threshold, and of those
     only the ones in `first` (the free-flight candidates) when any of them passes."""
     passing = [n for n, g in gains.items() if g is not None and np.isfinite(g) and g >= thresholds[n]]
-    early = [n for n in passing if n in set(first)]
+    first = set(first)
+    early = [n for n in passing if n in first]
     return early or passing
 
 

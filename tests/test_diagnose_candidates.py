@@ -6,7 +6,7 @@ minimum in one and several values."""
 import numpy as np
 import pytest
 
-from sgdr.discrepancy.candidates import CANDIDATES, Context, _fall_basis, _search, halves, refit_v0
+from sgdr.discrepancy.candidates import CANDIDATES, NULL_TOLERANCE, Context, _fall_basis, _search, halves, refit_v0
 from sgdr.physics import PhysicsConfig
 
 
@@ -89,6 +89,23 @@ def test_every_candidate_at_its_null_is_the_base_model(name):
         for k, v in values.items():
             np.testing.assert_allclose(v, ctx.values[k], atol=1e-12, err_msg=f"{name}: {k}")
         assert all(p.low <= p.null <= p.high for p in cand.params), name
+
+
+@pytest.mark.parametrize("name", sorted(CANDIDATES))
+def test_a_value_within_the_null_tolerance_is_at_null_and_one_beyond_is_not(name):
+    """A candidate fitted at its null value is the base model (run_diagnosis then keeps the base's
+    losses): within 1% of each value's box from the null, in object sizes for lengths."""
+    cand = CANDIDATES.get_named(name)
+    size = 0.4
+    null = {p.name: p.null * (size if p.relative else 1.0) for p in cand.params}
+    assert cand.at_null(null, size)
+    for p in cand.params:
+        box = (p.high - p.low) * (size if p.relative else 1.0)
+        inward = 1.0 if p.null < p.high else -1.0  # plasticity's null is its box's upper end
+        near = {**null, p.name: null[p.name] + inward * 0.5 * NULL_TOLERANCE * box}
+        far = {**null, p.name: null[p.name] + inward * 2.0 * NULL_TOLERANCE * box}
+        assert cand.at_null(near, size), (name, p.name)
+        assert not cand.at_null(far, size), (name, p.name)
 
 
 def test_the_two_stiffness_field_has_the_ratio_between_halves():

@@ -236,8 +236,9 @@ def run_diagnosis(cfg) -> dict:
             if again[0].d_fit < fit.d_fit:
                 fit, joint, d_alone, start = again
         # nested: the candidate at its null value is the base, so a fit worse than the base on the
-        # fitting views is a search that lost its way; the base's losses stand (gain 0)
-        at_null = bool(fit.d_fit > base["d_fit"])
+        # fitting views is a search that lost its way, and a fit at the null value gains only
+        # what the controls' refit beside it gains; either way the base's losses stand (gain 0)
+        at_null = bool(fit.d_fit > base["d_fit"]) or cand.at_null(fit.values, ctx.size)
         if at_null:
             fit = replace(fit, d_fit=base["d_fit"], d_held_out=base["d_held_out"], d_future=base["d_future"])
         candidates[name] = candidate_record(
@@ -392,7 +393,7 @@ def judge_in_free_flight(cand, flight, ev, refit_state, ctx, base, floor, dc) ->
     finally:
         ctx.values = saved_ctx
     fb = flight["base"]
-    at_null = bool(fit.d_fit > fb["d_fit"])
+    at_null = bool(fit.d_fit > fb["d_fit"]) or cand.at_null(fit.values, ctx.size)
     ev.reset(refit_state[0], refit_state[1])
     d_future = None
     if ev.obs_future is not None:

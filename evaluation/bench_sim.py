@@ -5,6 +5,7 @@ Measures, on the active Dr.Jit backend (LLVM by default):
   (2048 x 256) and at 512 x 64: one frame of 100 substeps, after a warm-up call whose time
   (tracing + compilation, or kernel-cache load) is reported separately; median wall time of
   the timed calls, plus the kernels' own execution time from Dr.Jit's kernel history;
+- one frame at 512 x 64 with spring plasticity over the elastic one (plastic_over_elastic_small);
 - the float64 NumPy twin (sgdr/physics/reference.py) on the same systems in the same run,
   and the ratio;
 - gradient cost over forward cost (default `physics.adjoint="gather"`, and `"recorded"` for
@@ -49,12 +50,12 @@ def _system(n_anchors: int, n_k: int, **cfg_overrides):
     return cfg, model, params, SimState.at_rest(model, params.v0), ground
 
 
-def _forward(n_anchors: int, n_k: int, reps: int) -> dict:
+def _forward(n_anchors: int, n_k: int, reps: int, **cfg_overrides) -> dict:
     import drjit as dr
 
     from sgdr.physics import simulate_frame
 
-    cfg, model, params, state, ground = _system(n_anchors, n_k)
+    cfg, model, params, state, ground = _system(n_anchors, n_k, **cfg_overrides)
     t0 = time.perf_counter()
     simulate_frame(model, params, state, ground, 1 / FPS, N_SUB, cfg)  # warm-up: trace + compile
     first = time.perf_counter() - t0
@@ -196,6 +197,8 @@ def run() -> dict:
     big = _forward(2048, 256, reps=3)
     log("forward 512 x 64")
     small = _forward(512, 64, reps=5)
+    log("forward 512 x 64 with spring plasticity (physics.plastic_yield_strain=0.1)")
+    plastic = _forward(512, 64, reps=5, plastic_yield_strain=0.1)
     log("numpy twin")
     np_big = _numpy_twin(2048, 256, n_steps=3)
     np_small = _numpy_twin(512, 64, n_steps=5)
@@ -222,6 +225,9 @@ def run() -> dict:
         "first_call_s_small": small["first_call_s"],
         "numpy_spring_steps_per_s": np_big,
         "numpy_ratio_small": small["steps_per_s"] / np_small,
+        # a plastic frame over an elastic one, same system (the yield's own kernel: ~1.3; 4 when
+        # gathering the new positions evaluated x alone and the spring loop ran twice)
+        "plastic_over_elastic_small": plastic["wall_s"] / small["wall_s"],
         "forward_s": grad["forward_s"],
         "forward_recording_s": grad["forward_recording_s"],
         "backward_s": grad["backward_s"],

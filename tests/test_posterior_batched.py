@@ -249,3 +249,39 @@ def test_samples_past_the_bound_are_retried_batched_with_doubled_substeps(monkey
     assert calls == [N_SUB, 2 * N_SUB]  # the sample beyond max_substeps and the NaN one are not run again
     np.testing.assert_allclose(pos[:2], loop[0][:2], atol=1e-4 * SIZE, rtol=0)  # float32, 2 n_t substeps
     assert np.isnan(pos[~stable]).all()
+
+
+def test_the_extensions_settings_changed_call_to_call_replay_what_the_loop_computes():
+    """The diagnosis's candidates (sgdr.discrepancy, diagnose.rollout=batched) change a physics
+    setting from one rollout to the next, read as Python floats inside the frozen frame: each new
+    value must give a new recording, never a replay of the last one's constants."""
+    from dataclasses import replace
+
+    from sgdr.posterior.rollouts import ROLLOUTS
+
+    cfg, model, params = asset(contact="coulomb")
+    base = plain_values(params)
+    one = {"log10_k_shift": np.zeros(1)}
+    settings = (
+        {},
+        {"air_drag": 2.0},
+        {"air_drag": 1.0},
+        {"gravity_scale": 0.85},
+        {"ground_offset": 0.01},
+        {"ground_tilt_deg": 3.0, "ground_tilt_azimuth_deg": 30.0},
+        {"plastic_yield_strain": 0.02},
+        {"plastic_yield_strain": 0.05},
+        {},
+    )
+    seen = []
+    for s in settings:
+        c = replace(cfg, **s)
+        (pb, sb), (pl, sl) = (
+            ROLLOUTS[n](model, base, one, GROUND, N_FRAMES, DT, N_SUB, c) for n in ("batched", "loop")
+        )
+        assert sb[0] and sl[0], s
+        assert np.abs(pb - pl).max() < 1e-5 * SIZE, s
+        seen.append(pb[0, -1])
+    # the settings do move the object (else the check above would be empty)
+    assert min(np.abs(a - seen[0]).max() for a in seen[1:-1]) > 1e-4 * SIZE
+    np.testing.assert_allclose(seen[-1], seen[0], atol=1e-6 * SIZE)

@@ -284,23 +284,31 @@ class Evaluator:
             tuple((k, np.asarray(v, float).round(12).tobytes()) for k, v in sorted((values or {}).items())),
         )
 
-    def positions(self, settings: dict, values: dict | None = None) -> np.ndarray | None:
+    def positions(self, settings: dict, values: dict | None = None, n_frames: int | None = None) -> np.ndarray | None:
+        """Anchor positions [T, N_A, 3] of the rollout with `settings` and `values`, None when it is
+        unstable; n_frames: at least that many frames (default: up to the last observed one). The
+        fitting and held-out views see the fit frames only, so a search's rollouts stop there and
+        the future frames are simulated only for the fits that are judged on them (a rollout's
+        first frames do not depend on how long it runs: the same positions, unless the longer one
+        needed more substeps to stay stable to its end; one unstable early is unstable longer)."""
         values = values or {}
         key = self._key(settings, values)
-        if key not in self.cache:
+        n = self.n_frames if n_frames is None else min(int(n_frames), self.n_frames)
+        done = self.cache.get(key)  # (frames simulated, positions or None: unstable within them)
+        if done is None or (done[0] < n and done[1] is not None):
             cfg = replace(self.asset.physics, **{**self.settings, **settings})
             pos, stable = self.rollout(
                 self.model,
                 {**self.values, **values},
                 {"log10_k_shift": np.zeros(1)},
                 self.ground,
-                self.n_frames,
+                n,
                 1.0 / self.asset.fps,
                 self.asset.n_substeps,
                 cfg,
             )
-            self.cache[key] = pos[0] if stable[0] else None
-        return self.cache[key]
+            self.cache[key] = (n, pos[0] if stable[0] else None)
+        return self.cache[key][1]
 
     def rebase(self, values: dict, settings: dict | None = None) -> None:
         """Replace base values and physics settings (what every later rollout starts from); the
@@ -319,7 +327,7 @@ class Evaluator:
     def per_view_frame(self, settings: dict, obs, values: dict | None = None) -> np.ndarray | None:
         """D [V, F] of one rollout, None when it is unstable (cached per rollout and observation:
         a rendered measure costs as much as the rollout)."""
-        pos = self.positions(settings, values)
+        pos = self.positions(settings, values, int(np.max(obs.frames)) + 1)
         if pos is None:
             return None
         key = (self._key(settings, values), id(obs))

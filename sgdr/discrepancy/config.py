@@ -44,6 +44,10 @@ class DiagnoseConfig:
     refit_min_gain: float = (
         0.3  # held-out gain of the base refit over the run's fit that writes diagnose/asset_refit (docs/discrepancy.md)
     )
+    # how each candidate's rollouts are simulated (sgdr.posterior.rollouts.ROLLOUTS): "batched"
+    # replays each frame's recorded kernels (the same positions as "loop", which traces every
+    # substep in Python; docs/discrepancy.md, "Diagnosis time")
+    rollout: str = "batched"
     discrepancy: str = (
         "render"  # how a rollout is measured against the images: render | points (sgdr.discrepancy.measures)
     )
@@ -89,6 +93,7 @@ CHECKS = {
     "frame_stride": at_least(1),
     "evaluations": at_least(4),
     "floor_margin": between(0.0, 1.0),
+    "rollout": choice("sgdr.posterior.rollouts:ROLLOUTS"),
     "min_gain": between(0.0, 1.0),
     "mimic_margin": between(0.0, 1.0),
     "mimic_window_margin": between(0.0, 1.0),

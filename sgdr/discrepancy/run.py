@@ -150,7 +150,7 @@ def run_diagnosis(cfg) -> dict:
     future = np.arange(seq.n_fit, seq.n_frames)
     obs_future = measure.observe(seq, views, future, dc, cfg.seed) if future.size else None
     score = measure.scorer(asset, dc, cfg.render, cfg.seed)
-    ev = Evaluator(asset, ROLLOUTS.get_named("loop"), obs_fit, obs_held, obs_future, score)
+    ev = Evaluator(asset, ROLLOUTS.get_named(dc.rollout, "diagnose.rollout"), obs_fit, obs_held, obs_future, score)
     size = float(np.linalg.norm(np.ptp(np.asarray(asset.anchors, float), axis=0)))
     base = {"d_fit": ev.d({}, obs_fit), "d_held_out": ev.d({}, obs_held)}
     base["d_future"] = ev.d({}, obs_future) if obs_future is not None else None
@@ -342,7 +342,7 @@ def free_flight(seq, asset, measure, dc, seed, fit_views, held_views, fit_frames
     def evaluator(frames):
         obs_fit = measure.observe(seq, fit_views, frames, fdc, seed)
         obs_held = measure.observe(seq, held_views, frames, fdc, seed)
-        ev = Evaluator(asset, ROLLOUTS.get_named("loop"), obs_fit, obs_held, None, score)
+        ev = Evaluator(asset, ROLLOUTS.get_named(dc.rollout, "diagnose.rollout"), obs_fit, obs_held, None, score)
         ev.rebase(refit_values)
         return ev, obs_fit, obs_held
 

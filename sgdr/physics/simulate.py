@@ -326,6 +326,11 @@ def substep(
     x, v = euler_contact(
         state.x, state.v, f, params.gravity, params.friction, params.restitution, _contact_consts(c), dt, cfg
     )
+    if cfg.plastic_yield_strain != 0.0:
+        # the yield gathers the new positions, and a gather evaluates its source: x alone, in a
+        # kernel of its own, and then v in another that runs the spring loop again (a plastic
+        # rollout took 4x an elastic one at small); x and v are evaluated together first
+        dr.eval(x, v, f) if dr.grad_enabled(f) else dr.eval(x, v)
     rest = plastic_rest_lengths(model, x, state.rest, cfg)
     extra = () if rest is None else (rest,)
     if dr.grad_enabled(f):

@@ -197,3 +197,37 @@ def test_the_excess_gain_is_a_share_of_the_room_above_the_floor():
     # a base at its floor: a chance improvement of 0.1% is a small share of the 5% margin
     assert excess_gain(0.999, 1.0, 1.0) == pytest.approx(0.02)
     assert excess_gain(6.0, 10.0, None) == pytest.approx(0.4)  # no floor: the relative gain
+
+
+def test_the_evaluator_simulates_the_fit_frames_for_a_search_and_the_rest_when_asked():
+    """A search's rollouts stop at the last fit frame (fit and held-out views see only those);
+    the future frames are simulated once a fit is judged on them, the fit frames then read from
+    the longer rollout; an unstable short rollout is not run again longer."""
+    from types import SimpleNamespace
+
+    from sgdr.discrepancy.candidates import Evaluator
+
+    calls = []
+
+    def rollout(model, values, samples, ground, n_frames, dt, n_sub, cfg):
+        calls.append(n_frames)
+        pos = np.zeros((1, n_frames, 2, 3))
+        pos[0, :, :, 2] = np.arange(n_frames)[:, None] * cfg.air_drag
+        return pos, np.array([cfg.air_drag < 5.0])
+
+    asset = SimpleNamespace(
+        values={}, physics=PhysicsConfig(), fps=24.0, n_substeps=10, ground_point=[0, 0, 0], ground_normal=[0, 0, 1]
+    )
+    asset.build = lambda: (None, None)
+    obs = lambda frames: SimpleNamespace(frames=np.asarray(frames))  # noqa: E731
+    fit, held, future = obs(range(1, 20)), obs(range(1, 20)), obs(range(20, 30))
+    score = lambda o, pos: pos[o.frames, :, 2].sum(axis=1, keepdims=True).T  # noqa: E731
+    ev = Evaluator(asset, rollout, fit, held, future, score)
+    assert ev.d({"air_drag": 1.0}, fit) == pytest.approx(sum(range(1, 20)) * 2)
+    assert ev.d({"air_drag": 1.0}, held) == pytest.approx(sum(range(1, 20)) * 2)
+    assert calls == [20]  # one rollout of the fit frames for both views
+    assert ev.d({"air_drag": 1.0}, future) == pytest.approx(sum(range(20, 30)) * 2)
+    assert calls == [20, 30]
+    assert ev.positions({"air_drag": 1.0}).shape[0] == 30 and calls == [20, 30]
+    assert ev.d({"air_drag": 6.0}, fit) == float("inf") and ev.d({"air_drag": 6.0}, future) == float("inf")
+    assert calls == [20, 30, 20]

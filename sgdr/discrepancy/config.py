@@ -46,7 +46,7 @@ class DiagnoseConfig:
     )
     # how each candidate's rollouts are simulated (sgdr.posterior.rollouts.ROLLOUTS): "batched"
     # replays each frame's recorded kernels (the same positions as "loop", which traces every
-    # substep in Python; docs/discrepancy.md, "Diagnosis time")
+    # substep in Python; docs/discrepancy.md, "Sixth sitting")
     rollout: str = "batched"
     discrepancy: str = (
         "render"  # how a rollout is measured against the images: render | points (sgdr.discrepancy.measures)

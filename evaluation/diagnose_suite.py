@@ -4,6 +4,7 @@
     python -m evaluation.diagnose_suite --max-cases 5        # the next five unfinished cases
     python -m evaluation.diagnose_suite --rediagnose         # diagnosis only, on the runs already here
     python -m evaluation.diagnose_suite --summary            # the bars, from the results file
+    python -m evaluation.diagnose_suite --effect-sizes       # re-measure effect sizes of kept sequences
 
 A case is an object, an injected effect and its size (or none: a null case), and a seed. For each
 case the generator (`experiments/generate.py`, MPM + Mitsuba) writes the sequence with the effect
@@ -166,6 +167,40 @@ def _commit() -> str:
         return "unknown"
 
 
+def elastic_twin(case: Case, args, log_file: Path) -> Path | None:
+    """The sequence of `case` without its effect (the null case of the same object and seed, in
+    the suite's data folder), generated when it is not there yet; None for a case whose effect
+    does not deform (only a plastic yield does). Raises RuntimeError when the generator fails."""
+    if case.effect != "plastic_yield":
+        return None
+    twin = Case(case.object, "none", 0.0, case.seed)
+    data = Path(args.data_dir) / twin.id
+    if not (data / "gt" / "params.json").exists():
+        common = [f"preset={args.preset}", f"seed={case.seed}", f"threads={args.threads}"]
+        cmd = [sys.executable, "experiments/generate.py", *common, f"synth.object={case.object}", f"synth.out={data}"]
+        rc, out = _run(cmd + list(args.set), log_file)
+        if rc != 0:
+            raise RuntimeError(f"the elastic twin {twin.id} failed to generate: {' '.join(_error(out))}")
+    return data
+
+
+def refresh_effect_sizes(results: dict, args) -> list[dict]:
+    """The finished records whose sequence is still in the data folder, with their `effect_sizes`
+    measured again (e.g. against the elastic twin, generated when missing); the caller appends
+    them, so that they supersede the old lines."""
+    out = []
+    for rec in results.values():
+        data = Path(args.data_dir) / rec["id"]
+        if rec.get("status") != "ok" or not (data / "gt" / "params.json").exists():
+            continue
+        case = Case(rec["object"], rec["effect"], float(rec["value"]), int(rec["seed"]))
+        log_file = Path(args.output_dir) / f"{case.id}.log"
+        log_file.parent.mkdir(parents=True, exist_ok=True)
+        sizes = effect_sizes(data, elastic_twin(case, args, log_file))
+        out.append({**rec, "effect_sizes": sizes, "effect_sizes_commit": _commit()})
+    return out
+
+
 def run_case(case: Case, args, reconstruct: bool) -> dict:
     data = Path(args.data_dir) / case.id
     runs = Path(args.output_dir)
@@ -188,7 +223,10 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
         if rc != 0:
             return _failed(rec, "reconstruct", out, log_file)
     rec["reconstruct_seconds"] = time.time() - t0 - rec.get("generate_seconds", 0.0)
-    rec["effect_sizes"] = effect_sizes(data)
+    try:
+        rec["effect_sizes"] = effect_sizes(data, elastic_twin(case, args, log_file))
+    except RuntimeError as e:  # the twin's generation failed: the measure without it, and why
+        rec["effect_sizes"] = {**effect_sizes(data), "elastic_twin_error": str(e)}
     cmd = [sys.executable, "experiments/diagnose.py", *common, f"diagnose.run={run_dir}", *args.set]
     rc, out = _run(cmd, log_file)
     if rc != 0:
@@ -233,17 +271,38 @@ def _rigid_residual(p0: np.ndarray, p1: np.ndarray) -> float:
     return float(np.sqrt(((b - a @ r.T) ** 2).sum(1).mean()))
 
 
-def effect_sizes(seq_dir: Path) -> dict:
+def _last_particles(seq_dir: Path) -> np.ndarray:
+    frames = sorted((Path(seq_dir) / "gt").glob("particles_*.npy"))
+    return np.load(frames[-1]).astype(float)
+
+
+def effect_sizes(seq_dir: Path, elastic_dir: Path | None = None) -> dict:
     """How large the case's effects are in its ground truth, in the units issue 15 states its sizes:
-    the permanent deformation (the last frame's particles against frame 0's after the best rigid
-    motion, RMS, over the object's height along the ground normal), the drag's slowing of the fall
-    by the hit frame (downward distance fallen, against the fall without drag), the ground offset
-    over the object's size (frame 0's bounding-box diagonal), the tilt, the gravity ratio."""
+    the permanent deformation, the drag's slowing of the fall by the hit frame (downward distance
+    fallen, against the fall without drag), the ground offset over the object's size (frame 0's
+    bounding-box diagonal), the tilt, the gravity ratio.
+
+    The permanent deformation is the RMS distance between two particle sets after the best rigid
+    motion, over the object's height along the ground normal. With `elastic_dir` (the same object,
+    seed and scene without the effect: the elastic twin) it compares the two last frames, so that
+    what an elastic object also shows there (its sag under its own weight, a wobble not yet
+    damped) does not count as plastic; `deformation_from_frame0` (the last frame against frame 0,
+    the only measure without a twin) is kept beside it."""
     gt = Path(seq_dir) / "gt"
     params = json.loads((gt / "params.json").read_text())
     seq = json.loads((Path(seq_dir) / "sequence.json").read_text())
     frames = sorted(gt.glob("particles_*.npy"))
     p0, p1 = np.load(frames[0]).astype(float), np.load(frames[-1]).astype(float)
+    from_frame0 = _rigid_residual(p0, p1)
+    permanent = from_frame0
+    if elastic_dir is not None:
+        pe = _last_particles(elastic_dir)
+        if pe.shape != p1.shape:
+            raise ValueError(
+                f"{elastic_dir}: the elastic twin has {len(pe)} particles, {seq_dir} has {len(p1)}: "
+                "not the same object and seed"
+            )
+        permanent = _rigid_residual(pe, p1)
     normal = np.asarray(params["recorded"]["ground"]["normal"], float)
     height = float(np.ptp(p0 @ normal))
     size = float(np.linalg.norm(np.ptp(p0, axis=0)))
@@ -254,7 +313,9 @@ def effect_sizes(seq_dir: Path) -> dict:
     c = float(e["air_drag"])
     dragged = free if c == 0 else v_down * (-np.expm1(-c * t)) / c + g * (t + np.expm1(-c * t) / c) / c
     return {
-        "permanent_deformation": _rigid_residual(p0, p1) / height,
+        "permanent_deformation": permanent / height,
+        "deformation_from_frame0": from_frame0 / height,
+        "permanent_reference": "elastic twin's last frame" if elastic_dir is not None else "frame 0",
         "fall_slowed": 1.0 - dragged / free if free > 0 else None,
         "ground_offset_over_size": float(e["ground_offset"]) / size,
         "ground_tilt_deg": float(e["ground_tilt_deg"]),
@@ -398,6 +459,12 @@ def main(argv=None) -> int:
     p.add_argument("--set", action="append", default=[], help="a config override passed to every command (key=value)")
     p.add_argument("--rediagnose", action="store_true", help="re-run only the diagnosis on run folders already here")
     p.add_argument("--summary", action="store_true", help="print the table and the bars, run nothing")
+    p.add_argument(
+        "--effect-sizes",
+        action="store_true",
+        help="measure the finished cases' effect sizes again where their sequences are still here, "
+        "append the updated records, run nothing else",
+    )
     args = p.parse_args(argv)
     args.results = Path(args.results or ROOT / "results" / f"diagnose_suite_{args.preset}.jsonl")
     args.data_dir = args.data_dir or str(ROOT / "data" / f"diagnose_suite_{args.preset}")
@@ -409,6 +476,16 @@ def main(argv=None) -> int:
     if args.summary:
         print(markdown(results))
         print(json.dumps(summary(results)))
+        return 0
+    if args.effect_sizes:
+        chosen = {parse_case(c).id for c in args.case}
+        picked = {k: r for k, r in results.items() if not chosen or k in chosen}
+        updated = refresh_effect_sizes(picked, args)
+        with args.results.open("a") as f:
+            for rec in updated:
+                f.write(json.dumps(rec) + "\n")
+                print(f"{rec['id']}: {json.dumps(rec['effect_sizes'])}")
+        print(f"{len(updated)} records updated in {args.results}")
         return 0
     cases = [parse_case(c) for c in args.case] or default_cases(tuple(args.objects.split(",")))
     if args.rediagnose:

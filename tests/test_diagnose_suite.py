@@ -3,6 +3,7 @@ issue's counts and mix nulls and effects early, a rerun skips finished cases and
 ones, effect sizes are measured from a case's truth, and the bars are computed from the records."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -78,6 +79,48 @@ def test_effect_sizes_from_the_truth(tmp_path):
     assert 0.03 < squashed["permanent_deformation"] < 0.2
     assert squashed["fall_slowed"] == pytest.approx(0.144, abs=0.01)  # drag 2 /s over 5 / 24 s
     assert squashed["gravity_ratio"] == pytest.approx(0.85)
+
+
+def test_the_elastic_twins_sag_is_not_permanent(tmp_path):
+    """A sag both the plastic sequence and its elastic twin show at their last frame is not a
+    permanent deformation; only what the plastic one adds is."""
+    sag = lambda p: p * [1.0, 1.0, 0.9]  # noqa: E731
+    plastic = _gt(tmp_path / "p", lambda p: sag(p) * [1.0, 1.0, 0.8], {})
+    sagged_only = _gt(tmp_path / "e", sag, {})
+    sizes = S.effect_sizes(plastic, elastic_dir=sagged_only)
+    assert sizes["permanent_reference"] == "elastic twin's last frame"
+    assert sizes["deformation_from_frame0"] > sizes["permanent_deformation"] > 0.03
+    assert S.effect_sizes(sagged_only, elastic_dir=sagged_only)["permanent_deformation"] == pytest.approx(0, abs=1e-9)
+    assert S.effect_sizes(sagged_only)["permanent_deformation"] > 0.02  # frame 0 counts the sag
+    other = tmp_path / "o" / "gt"
+    other.mkdir(parents=True)
+    np.save(other / "particles_000.npy", np.zeros((10, 3)))
+    with pytest.raises(ValueError, match="not the same object and seed"):
+        S.effect_sizes(plastic, elastic_dir=other.parent)
+
+
+def test_the_elastic_twin_is_the_null_case_and_generated_once(tmp_path, monkeypatch):
+    args = type("A", (), {"data_dir": str(tmp_path), "preset": "tiny", "threads": 1, "set": []})()
+    calls = []
+
+    def fake_run(cmd, log_file):
+        calls.append(cmd)
+        out = Path(next(c for c in cmd if c.startswith("synth.out=")).split("=", 1)[1])
+        _gt(out.parent / "tmp", lambda p: p, {})
+        (out.parent / "tmp" / "seq").rename(out)
+        return 0, ""
+
+    monkeypatch.setattr(S, "_run", fake_run)
+    assert S.elastic_twin(S.Case("cream", "gravity", 0.85, 0), args, tmp_path / "log") is None
+    twin = S.elastic_twin(S.Case("cream", "plastic_yield", 0.1, 1), args, tmp_path / "log")
+    assert twin == tmp_path / "cream-none-0-s1" and len(calls) == 1
+    assert "synth.object=cream" in calls[0] and "seed=1" in calls[0]
+    assert not any(c.startswith("synth.effects") for c in calls[0])  # no effect in the twin
+    assert S.elastic_twin(S.Case("cream", "plastic_yield", 0.15, 1), args, tmp_path / "log") == twin
+    assert len(calls) == 1  # already there: not generated again
+    monkeypatch.setattr(S, "_run", lambda cmd, log_file: (1, "boom\nMPM blew up"))
+    with pytest.raises(RuntimeError, match="cream-none-0-s0.*MPM blew up"):
+        S.elastic_twin(S.Case("cream", "plastic_yield", 0.1, 0), args, tmp_path / "log")
 
 
 def _rec(id_, expected, cause, gains):

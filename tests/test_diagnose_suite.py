@@ -253,3 +253,17 @@ def test_the_whole_fit_window_settles_a_tie_between_free_flight_mimics(monkeypat
     assert S.redecide_with_rivals(rec) == ("air_drag", [])
     rec["candidates"]["air_drag"]["fit_window_gain"] = 0.8
     assert S.redecide_with_rivals(rec) == ("gravity", ["air_drag"])
+
+
+def test_a_tilt_case_from_the_old_generator_is_run_again_and_not_counted(monkeypatch):
+    monkeypatch.setattr(S, "method_thresholds", lambda method: {"ground_plane": 0.1})
+    old = _rec("p-ground_tilt", "ground_plane", "none", {"ground_plane": 0.0})
+    new = {
+        **_rec("q-ground_tilt", "ground_plane", "ground_plane", {"ground_plane": 0.4}),
+        "tilt_generator": "plane_frame",
+    }
+    offset = _rec("r-ground_offset", "ground_plane", "ground_plane", {"ground_plane": 0.4})
+    assert not S._current(old) and S._current(new) and S._current(offset)
+    s = S.summary({r["id"]: r for r in (old, new, offset)})
+    assert s["injected_cases"] == 2 and s["tilt_before_plane_frame"] == ["p-ground_tilt"]
+    assert s["before_base_refit"] == []

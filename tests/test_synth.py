@@ -151,6 +151,12 @@ def test_generated_sequence_is_complete_and_consistent(tiny_sequence):
     cfg, out = tiny_sequence
     seq = load_sequence(out)
     assert is_complete(out, cfg)
+    # another injected effect is another sequence: not complete, generated anew
+    from dataclasses import replace
+
+    assert not is_complete(out, replace(cfg, effects=replace(cfg.effects, air_drag=2.0)))
+    assert not is_complete(out, replace(cfg, effects=replace(cfg.effects, ground_tilt_deg=3.0)))
+    assert seq.gt_params()["mpm"]["frame"] == "world"
     assert (seq.n_frames, seq.n_fit, seq.n_views, seq.fps) == (8, 6, 2, cfg.fps)
     assert abs(seq.hit_frame - cfg.hit_frame) <= 1
     np.testing.assert_allclose(seq.gravity, [0, 0, -9.8])

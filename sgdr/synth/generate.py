@@ -147,13 +147,20 @@ def free_flight(x0, v0, g, drag, dt, substeps, n_frames) -> np.ndarray:
     return np.array(out)
 
 
+def tilt_rotation(tilt_deg: float) -> np.ndarray:
+    """The rotation about the world x axis that takes the level normal (+z) to a ground tilted by
+    `tilt_deg` (`true_ground`'s normal)."""
+    t = np.radians(float(tilt_deg))
+    c, s = np.cos(t), np.sin(t)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
 def true_ground(ground_point: np.ndarray, cfg: SynthConfig) -> tuple[np.ndarray, np.ndarray]:
     """(point, unit normal) of the ground the MPM collides with: the recorded (planned) plane
     raised by `effects.ground_offset` and tilted by `effects.ground_tilt_deg` about the world x
     axis through that point. Without those effects, the recorded plane."""
     e = cfg.effects
-    theta = np.radians(float(e.ground_tilt_deg))
-    normal = np.array([0.0, -np.sin(theta), np.cos(theta)])  # GROUND_NORMAL rotated about +x
+    normal = tilt_rotation(e.ground_tilt_deg) @ GROUND_NORMAL
     return np.asarray(ground_point, float) + float(e.ground_offset) * GROUND_NORMAL, normal
 
 
@@ -190,25 +197,42 @@ def measured_hit_frame(frames: np.ndarray, flight: np.ndarray) -> int:
 
 
 def simulate_drop(obj, cfg: SynthConfig, progress=None):
-    """Run the MPM drop of a built object; returns (frames [F, P, 3], info dict)."""
+    """Run the MPM drop of a built object; returns (frames [F, P, 3], info dict).
+
+    A tilted ground (`effects.ground_tilt_deg`) is simulated in the plane's own frame: the
+    particles, v0 and gravity rotated about the true ground point so that the plane is level and
+    lies on a grid node layer, the frames rotated back. On the grid itself a plane a few degrees
+    off its axes is a staircase of level bands (at 48 cells per unit a 3° plane rises half a cell
+    under the paste), which bounced the object as if the plane were level: the paste's bounce on
+    a 3° plane drifted 0.005 units downhill by frame 10, where a spring-mass model on the same
+    plane drifts 0.03 (docs/discrepancy.md, "Seventh sitting")."""
     from sgdr.synth import mpm
 
     cfg = with_object_material(cfg)
     dx = 1.0 / cfg.mpm_grid
     ground_point, g, origin, t_contact = plan_scene(obj.particles, cfg, dx)
     e = cfg.effects
+    point, normal = true_ground(ground_point, cfg)
+    rot = tilt_rotation(e.ground_tilt_deg)  # plane frame -> world (identity when level)
+    particles, v0, g_sim = obj.particles, np.asarray(cfg.v0, float), g
+    if e.ground_tilt_deg != 0.0:
+        particles = point + (obj.particles - point) @ rot  # rot.T applied to each row
+        v0, g_sim, normal = v0 @ rot, g @ rot, GROUND_NORMAL
+        duration = (cfg.n_frames - 1) / cfg.fps
+        centre = particles.mean(0) + 0.5 * v0 * duration
+        origin = np.array([centre[0] - 0.5, centre[1] - 0.5, point[2] - (cfg.wall_cells + 1) * dx])
     E_scale = np.ones(len(obj.particles))
     if e.stiff_ratio != 1.0:
         coord = obj.particles[:, e.stiff_axis]
         E_scale[coord > np.median(coord)] = e.stiff_ratio
     E_max = cfg.E * max(1.0, e.stiff_ratio)
     dt_frame = 1.0 / cfg.fps
-    v_bound = float(np.linalg.norm(cfg.v0)) + abs(g[2]) * t_contact + 1.0
+    v_bound = float(np.linalg.norm(cfg.v0)) + float(np.linalg.norm(g)) * t_contact + 1.0
     substeps = cfg.substeps or mpm.cfl_substeps(dt_frame, dx, E_max, cfg.nu, cfg.density, cfg.cfl, v_bound)
     dt = dt_frame / substeps
     mpm.check_cfl(dt, dx, E_max, cfg.nu, cfg.density, cfg.cfl, v_bound)
     model = mpm.create_model(
-        obj.particles,
+        particles,
         obj.particle_volume,
         cfg.density,
         n_grid=cfg.mpm_grid,
@@ -218,15 +242,17 @@ def simulate_drop(obj, cfg: SynthConfig, progress=None):
         material=cfg.material,
         collider=cfg.ground,
         friction=cfg.ground_friction,
-        ground_point=true_ground(ground_point, cfg)[0],
-        ground_normal=true_ground(ground_point, cfg)[1],
+        ground_point=point,
+        ground_normal=normal,
         wall_cells=cfg.wall_cells,
         E_scale=E_scale,
         plastic=e.plastic_yield > 0,
     )
-    params = mpm.MPMParams.create(cfg.E, cfg.nu, g, drag=e.air_drag, yield_stress=e.plastic_yield)
-    state = mpm.MPMState.at_rest(obj.particles, cfg.v0)
+    params = mpm.MPMParams.create(cfg.E, cfg.nu, g_sim, drag=e.air_drag, yield_stress=e.plastic_yield)
+    state = mpm.MPMState.at_rest(particles, v0)
     frames, _ = mpm.simulate(model, params, state, cfg.n_frames, substeps, cfg.cfl, progress)
+    if e.ground_tilt_deg != 0.0:
+        frames = (point + (np.asarray(frames, float) - point) @ rot.T).astype(np.asarray(frames).dtype)
     info = {
         "ground_point": ground_point,
         "gravity": g,
@@ -239,6 +265,8 @@ def simulate_drop(obj, cfg: SynthConfig, progress=None):
             frames, free_flight(frames[0].mean(0), cfg.v0, g, e.air_drag, dt, substeps, cfg.n_frames)
         ),
         "E_scale": E_scale,
+        # the frame the MPM ran in: "plane" (rotated so that a tilted ground is level) or "world"
+        "frame": "plane" if e.ground_tilt_deg != 0.0 else "world",
     }
     return frames, info
 
@@ -265,7 +293,8 @@ def light_rig(cfg: SynthConfig) -> dict:
 
 
 def is_complete(out_dir, cfg: SynthConfig) -> bool:
-    """True when out_dir holds a valid sequence with ground truth matching cfg's sizes."""
+    """True when out_dir holds a valid sequence with ground truth matching cfg's sizes and
+    injected effects (a tilted ground's simulated in the plane's frame: `simulate_drop`)."""
     from sgdr.data import SequenceError, load_sequence
 
     cfg = as_synth_config(cfg)
@@ -273,12 +302,19 @@ def is_complete(out_dir, cfg: SynthConfig) -> bool:
         seq = load_sequence(out_dir)
     except SequenceError:
         return False
+    params = seq.gt_params() or {}
+    want = effects_record(cfg)
+    have = params.get("effects") or {}
+    same_effects = all(have.get(k) == v for k, v in want.items() if k != "active")
+    tilt_frame = cfg.effects.ground_tilt_deg == 0.0 or (params.get("mpm") or {}).get("frame") == "plane"
     return (
         seq.gt_dir is not None
         and seq.n_frames == cfg.n_frames
         and seq.n_views == cfg.n_views
         and all(c.width == cfg.resolution for c in seq.cameras)
-        and (seq.gt_params() or {}).get("object") == cfg.object
+        and params.get("object") == cfg.object
+        and same_effects
+        and tilt_frame
     )
 
 
@@ -356,7 +392,7 @@ def generate_sequence(cfg: SynthConfig, out_dir, seed: int, progress: bool = Fal
         "n_particles": int(len(obj.particles)),
         "particle_volume": obj.particle_volume,
         "particle_mass": obj.particle_volume * cfg.density,
-        "mpm": {k: info[k] for k in ("grid_origin", "dx", "substeps_per_frame", "dt")}
+        "mpm": {k: info[k] for k in ("grid_origin", "dx", "substeps_per_frame", "dt", "frame")}
         | {"n_grid": cfg.mpm_grid, "cfl": cfg.cfl, "wall_cells": cfg.wall_cells},
         "hit_frame": info["hit_frame"],
         "hit_frame_planned": int(cfg.hit_frame),

@@ -384,13 +384,16 @@ def _decided(results: dict) -> list[dict]:
 TILT_GENERATOR = "plane_frame"
 
 
+def _old_tilt(rec: dict) -> bool:
+    """A ground-tilt case generated before the current tilt generator (`TILT_GENERATOR`)."""
+    return rec.get("effect") == "ground_tilt" and rec.get("tilt_generator") != TILT_GENERATOR
+
+
 def _current(rec: dict) -> bool:
     """A finished case diagnosed with the base refit (records without `base_refit` predate it:
     their gains are over the run's own fit, a different rule; they stay in the file, uncounted),
     and, for a ground tilt, generated with the current tilt generator (`TILT_GENERATOR`)."""
-    if rec.get("effect") == "ground_tilt" and rec.get("tilt_generator") != TILT_GENERATOR:
-        return False
-    return rec.get("status") == "ok" and "base_refit" in rec
+    return rec.get("status") == "ok" and "base_refit" in rec and not _old_tilt(rec)
 
 
 def summary(results: dict) -> dict:
@@ -434,11 +437,7 @@ def summary(results: dict) -> dict:
             r["id"] for r in results.values() if r.get("status") == "ok" and "base_refit" not in r
         ),
         "tilt_before_plane_frame": sorted(
-            r["id"]
-            for r in results.values()
-            if r.get("status") == "ok"
-            and r.get("effect") == "ground_tilt"
-            and r.get("tilt_generator") != TILT_GENERATOR
+            r["id"] for r in results.values() if r.get("status") == "ok" and _old_tilt(r)
         ),
     }
 

@@ -75,7 +75,10 @@ def test_adjoint_matches_recorded_ad(adjoint, law, springs, stiffness, contact, 
             assert np.abs(other[name]).max() == 0.0
             continue
         assert scale > 0, name  # the scene makes the parameter matter
-        assert np.abs(other[name] - recorded[name]).max() <= 1e-5 * scale, (name, other[name], recorded[name])
+        # 1e-4 of the largest: a scalar's gradient (friction, restitution, gravity) is a float32 sum
+        # over every anchor and substep, accumulated in another order by each adjoint (the CI
+        # machine once gave 1.15e-5 for friction); a wrong adjoint term is off by far more
+        assert np.abs(other[name] - recorded[name]).max() <= 1e-4 * scale, (name, other[name], recorded[name])
 
 
 def test_unknown_adjoint_is_refused_naming_the_setting():

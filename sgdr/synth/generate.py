@@ -164,13 +164,23 @@ def true_ground(ground_point: np.ndarray, cfg: SynthConfig) -> tuple[np.ndarray,
     return np.asarray(ground_point, float) + float(e.ground_offset) * GROUND_NORMAL, normal
 
 
+def grid_origin(particles: np.ndarray, v0, floor_z: float, cfg: SynthConfig, dx: float) -> np.ndarray:
+    """The MPM grid's origin: the unit cube centred horizontally on the free-flight path of
+    `particles` moving with v0 (half-way through the sequence), its floor (wall_cells + 1) cells
+    under `floor_z`, the lowest ground height inside it."""
+    duration = (cfg.n_frames - 1) / cfg.fps
+    centre = particles.mean(0) + 0.5 * np.asarray(v0, float) * duration
+    return np.array([centre[0] - 0.5, centre[1] - 0.5, floor_z - (cfg.wall_cells + 1) * dx])
+
+
 def plan_scene(particles: np.ndarray, cfg: SynthConfig, dx: float):
     """Ground point, gravity vector and MPM grid origin for the drop (module docstring).
 
     Contact starts when a particle's B-spline stencil reaches the collider band, i.e. when the
     lowest particle is 1.5 Δx above the plane; the plane lies on a grid node layer. The grid's
-    floor lies (wall_cells + 1) cells under the lowest point of the true ground (`true_ground`)
-    inside the grid's footprint, so a tilted or lowered ground stays inside the domain.
+    floor lies (wall_cells + 1) cells under the lower of the recorded and the true ground, so a
+    lowered ground stays inside the domain (a tilted ground runs in the plane's own frame, with
+    its own origin: `simulate_drop`).
     """
     g = np.array([0.0, 0.0, -float(cfg.effects.gravity)])
     v0 = np.asarray(cfg.v0, dtype=np.float64)
@@ -178,14 +188,8 @@ def plan_scene(particles: np.ndarray, cfg: SynthConfig, dx: float):
     bottom = particles[:, 2].min()
     ground_z = free_fall(bottom, v0[2], g[2], t_contact) - CONTACT_CELLS * dx
     ground_point = np.array([0.5, 0.5, ground_z])
-    duration = (cfg.n_frames - 1) / cfg.fps
-    centre = particles.mean(0) + 0.5 * v0 * duration
-    point, normal = true_ground(ground_point, cfg)
-    corners = np.array([[centre[0] + sx, centre[1] + sy] for sx in (-0.5, 0.5) for sy in (-0.5, 0.5)])
-    # the true plane's height at the footprint's corners: n . (X - p) = 0 solved for z
-    heights = point[2] - ((corners - point[:2]) @ normal[:2]) / normal[2]
-    floor = min(ground_z, float(heights.min()))
-    origin = np.array([centre[0] - 0.5, centre[1] - 0.5, floor - (cfg.wall_cells + 1) * dx])
+    point, _ = true_ground(ground_point, cfg)
+    origin = grid_origin(particles, v0, min(ground_z, float(point[2])), cfg, dx)
     return ground_point, g, origin, t_contact
 
 
@@ -218,9 +222,7 @@ def simulate_drop(obj, cfg: SynthConfig, progress=None):
     if e.ground_tilt_deg != 0.0:
         particles = point + (obj.particles - point) @ rot  # rot.T applied to each row
         v0, g_sim, normal = v0 @ rot, g @ rot, GROUND_NORMAL
-        duration = (cfg.n_frames - 1) / cfg.fps
-        centre = particles.mean(0) + 0.5 * v0 * duration
-        origin = np.array([centre[0] - 0.5, centre[1] - 0.5, point[2] - (cfg.wall_cells + 1) * dx])
+        origin = grid_origin(particles, v0, float(point[2]), cfg, dx)
     E_scale = np.ones(len(obj.particles))
     if e.stiff_ratio != 1.0:
         coord = obj.particles[:, e.stiff_axis]
@@ -252,7 +254,8 @@ def simulate_drop(obj, cfg: SynthConfig, progress=None):
     state = mpm.MPMState.at_rest(particles, v0)
     frames, _ = mpm.simulate(model, params, state, cfg.n_frames, substeps, cfg.cfl, progress)
     if e.ground_tilt_deg != 0.0:
-        frames = (point + (np.asarray(frames, float) - point) @ rot.T).astype(np.asarray(frames).dtype)
+        frames = np.asarray(frames)
+        frames = (point + (frames.astype(float) - point) @ rot.T).astype(frames.dtype)
     info = {
         "ground_point": ground_point,
         "gravity": g,

@@ -253,6 +253,10 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
         }
         for n, c in diag["candidates"].items()
     }
+    for n, c in diag["candidates"].items():  # judged at the injected truth (sgdr.discrepancy.truth)
+        if c.get("truth"):
+            rec["candidates"][n]["truth_gain"] = c["truth"]["gain"]
+            rec["candidates"][n]["truth_values"] = c["truth"]["values"]
     rec["base"] = diag["base"]
     if diag.get("rebase"):
         rb = diag["rebase"]
@@ -409,6 +413,13 @@ def summary(results: dict) -> dict:
         e["cases"] += 1
         e["named"] += int(r["correct"])
         e["gains"].append(r["candidates"].get(_candidate_of(r["expected"]), {}).get("gain"))
+    misses = {"below_reach": [], "within_reach": [], "not_judged_at_truth": []}
+    for r in injected:
+        if r["correct"]:
+            continue
+        reach = truth_reach(r)
+        key = "not_judged_at_truth" if reach is None else "within_reach" if reach else "below_reach"
+        misses[key].append(r["id"])
     null_gains = {}
     for r in null:
         for n, c in r["candidates"].items():
@@ -430,6 +441,10 @@ def summary(results: dict) -> dict:
             sum(not r["ambiguous_with"] for r in named) / len(injected) if injected else None
         ),
         "per_effect": per_effect,
+        # a missed case whose expected cause's candidates, judged at the injected truth, reach no
+        # threshold: these data and this base model do not show the effect (no search would name
+        # it); within reach: the truth would have passed, the search or the decision missed it
+        "missed": misses,
         "null_max_gain": {n: max(g) for n, g in null_gains.items()},
         "failed": sorted(r["id"] for r in results.values() if r.get("status") != "ok"),
         # finished but not counted: before the base refit, or a tilt from the old generator
@@ -440,6 +455,23 @@ def summary(results: dict) -> dict:
             r["id"] for r in results.values() if r.get("status") == "ok" and _old_tilt(r)
         ),
     }
+
+
+def truth_reach(rec: dict, thresholds: dict | None = None) -> bool | None:
+    """Whether a candidate of the case's expected cause, judged at the injected truth, reaches its
+    threshold (the current ones of the record's method); None when none was judged there."""
+    from sgdr.discrepancy.candidates import CANDIDATES
+    from sgdr.discrepancy.config import DiagnoseConfig
+
+    thresholds = thresholds or method_thresholds(rec.get("method", "spring_gaus"))
+    gains = [
+        (n, c["truth_gain"])
+        for n, c in rec["candidates"].items()
+        if c.get("truth_gain") is not None and CANDIDATES.get_named(n).cause == rec["expected"]
+    ]
+    if not gains:
+        return None
+    return any(g >= thresholds.get(n, DiagnoseConfig.min_gain) for n, g in gains)
 
 
 def _candidate_of(cause: str) -> str:
@@ -456,7 +488,10 @@ def markdown(results: dict) -> str:
         cells = []
         for n in names:
             c = r["candidates"].get(n)
-            cells.append("-" if c is None else f"{c['gain']:.3f} ({c['value']:.3g})")
+            cell = "-" if c is None else f"{c['gain']:.3f} ({c['value']:.3g})"
+            if c is not None and c.get("truth_gain") is not None:
+                cell += f" [truth {c['truth_gain']:.3f}]"
+            cells.append(cell)
         mark = ("" if r["correct"] else " ✗") + "".join(f" ≈ {c}" for c in r["ambiguous_with"])
         lines.append(
             f"| {r['id']} | {r.get('commit', '?')} | {r['expected']} | {r['cause']}{mark} | " + " | ".join(cells) + " |"

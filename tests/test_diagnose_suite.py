@@ -267,3 +267,30 @@ def test_a_tilt_case_from_the_old_generator_is_run_again_and_not_counted(monkeyp
     s = S.summary({r["id"]: r for r in (old, new, offset)})
     assert s["injected_cases"] == 2 and s["tilt_before_plane_frame"] == ["p-ground_tilt"]
     assert s["before_base_refit"] == []
+
+
+def test_a_miss_is_below_reach_when_even_the_truth_gains_too_little(monkeypatch):
+    """A missed case whose expected cause's candidates, judged at the injected truth, reach no
+    threshold is below what the data show; one whose truth passes is the search's miss."""
+    monkeypatch.setattr(S, "method_thresholds", lambda method: {"ground_plane": 0.2, "ground_tilt": 0.5})
+    results = {}
+    for name, truth_gains in (
+        ("c-ground_offset-below", {"ground_plane": 0.1, "ground_tilt": 0.3}),  # neither reaches its threshold
+        ("c-ground_offset-within", {"ground_plane": 0.1, "ground_tilt": 0.6}),  # the tilt at the truth would pass
+        ("c-ground_offset-unjudged", {}),  # diagnosed before the truth was judged
+    ):
+        rec = _rec(name, "ground_plane", "none", {"ground_plane": 0.05, "ground_tilt": 0.1})
+        for n, g in truth_gains.items():
+            rec["candidates"][n]["truth_gain"] = g
+        results[name] = rec
+    s = S.summary(results)
+    assert s["missed"] == {
+        "below_reach": ["c-ground_offset-below"],
+        "within_reach": ["c-ground_offset-within"],
+        "not_judged_at_truth": ["c-ground_offset-unjudged"],
+    }
+    assert "[truth 0.600]" in S.markdown(results)
+    # a named case is no miss, whatever its truth gain
+    results["named"] = _rec("c-ground_offset-named", "ground_plane", "ground_plane", {"ground_plane": 0.4, "ground_tilt": 0.1})
+    results["named"]["candidates"]["ground_plane"]["truth_gain"] = 0.05
+    assert "c-ground_offset-named" not in sum(S.summary(results)["missed"].values(), [])

@@ -73,6 +73,10 @@ class DiagnoseConfig:
     # window (their fit_window_gain; run.settle_mimics) and reaches its own threshold there; a larger
     # margin settles fewer ties
     mimic_window_margin: float = 0.1
+    # on a generated sequence (gt/effects.json), each candidate that models an injected effect is
+    # also judged at the true value (diagnosis.json "truth"; sgdr.discrepancy.truth): what the data
+    # let the effect show at all; reported, never used to decide
+    truth: bool = True
     residuals: bool = True  # also the residual diagnostics of the base fit (residuals.json, residual_*.png)
     residual_grid: int = 48  # blocks on the long side of the spatial residual maps (full resolution when larger)
     residual_views: int = 4  # views shown in residual_spatial.png (those that disagree most)

@@ -162,6 +162,19 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
     ]  # fmt: skip
     header = ["candidate", "changes", "fitted values", "held-out gain", "threshold", "future gain", "decision"]
     body.append(table(header, rows))
+    at_truth = {n: c["truth"] for n, c in diagnosis["candidates"].items() if c.get("truth")}
+    if at_truth:
+        parts = [
+            f"{esc(n)} at " + ", ".join(f"{k} = {_g(v)}" for k, v in t["values"].items())
+            + f": held-out gain {_g(t['gain'])} (threshold {_g(diagnosis['candidates'][n].get('min_gain'))})"
+            for n, t in at_truth.items()
+        ]  # fmt: skip
+        body.append(
+            '<p id="discrepancy-truth"><b>At the injected truth</b> (gt/effects.json; judged as the fits are): '
+            + "; ".join(parts)
+            + ". A gain below the threshold even at the truth means these data and this base model do not show "
+            "the effect: no search would name it.</p>"
+        )
     base, unit = diagnosis["base"], diagnosis["discrepancy"]["unit"]
     rebase = diagnosis.get("rebase")
     if rebase:

@@ -130,6 +130,7 @@ def run_diagnosis(cfg) -> dict:
     from sgdr.discrepancy.candidates import CANDIDATES, Context, Evaluator, fit_candidate
     from sgdr.discrepancy.measures import MEASURES
     from sgdr.discrepancy.residuals import summary
+    from sgdr.discrepancy.truth import scene_of, truth_values
     from sgdr.posterior.rollouts import ROLLOUTS
     from sgdr.posterior.run import run_asset_and_sequence, run_sequence, strict_values
 
@@ -254,6 +255,16 @@ def run_diagnosis(cfg) -> dict:
         )
         candidates[name]["from"] = start
         log.info("diagnose: %s = %s, held-out gain %.3f", name, fit.values, candidates[name]["gain"])
+    truth = seq.gt_effects() if dc.truth and seq.gt_dir is not None else None
+    if truth and truth.get("active"):
+        scene = scene_of(seq, asset)
+        for name, rec in candidates.items():
+            at = truth_values(name, truth, scene)
+            if at is not None:
+                cand = CANDIDATES.get_named(name, "diagnose.candidates")
+                where = flight if rec["window"] == "free_flight" else None
+                rec["truth"] = judge_truth(cand, at, where, ev, refit_state, ctx, base, floor, dc)
+                log.info("diagnose: %s at the truth %s, held-out gain %.3f", name, at[0], rec["truth"]["gain"])
     thresholds = {n: threshold(dc, n) for n in candidates}
     free = [n for n, c in candidates.items() if c["window"] == "free_flight"]
     gains = {n: c["gain"] for n, c in candidates.items()}
@@ -407,6 +418,53 @@ def judge_in_free_flight(cand, flight, ev, refit_state, ctx, base, floor, dc) ->
     window_gain = excess_gain(d_window, base["d_held_out"], floor["held_out"], margin)
     record = candidate_record(cand, fit, held, future, margin, None, gain_over_asset_fit=None)
     return {**record, "at_null": at_null, "from": "refit", "window": "free_flight", "fit_window_gain": window_gain}
+
+
+def judge_truth(cand, at: tuple, flight: dict | None, ev, refit_state, ctx, base, floor, dc) -> dict:
+    """A candidate judged at the injected truth `at` (values, variant; `sgdr.discrepancy.truth`) as
+    its fit is: from the refit base, in the free-flight window when `flight` is given (no controls
+    refitted), else on the fit window with the controls refitted beside it. Returns the values,
+    the held-out loss and gain (and the gain with no controls refitted), the future gain."""
+    values, variant = at
+    saved = ctx.values
+    ctx.values = refit_state[2]
+    try:
+        settings, repl = cand.apply(ctx, values, variant)
+    finally:
+        ctx.values = saved
+    margin = float(dc.floor_margin)
+    out = {"values": values, "variant": variant, "settings": {f"physics.{k}": v for k, v in settings.items()}}
+    ev.reset(refit_state[0], refit_state[1])
+    d_future = ev.d(settings, ev.obs_future, repl) if ev.obs_future is not None else None
+    if flight is not None:
+        fev, fb = flight["ev"], flight["base"]
+        d_held = fev.d(settings, fev.obs_held, repl)
+        out.update(
+            window="free_flight",
+            held_out_loss=d_held,
+            gain=excess_gain(d_held, fb["d_held_out"], flight["floor"], margin),
+        )
+    else:
+        d_alone = ev.d(settings, ev.obs_held, repl)
+        d_held = d_alone
+        if dc.rebase:
+            saved = ctx.values
+            ctx.values = refit_state[2]
+            try:
+                joint = refit_controls(ev, ctx, dc, max(4, int(dc.evaluations) // 2), settings, repl)
+            finally:
+                ctx.values = saved
+            d_held, d_future = joint["d_held_out"], joint["d_future"]
+            out["controls"] = {n: st["values"] for n, st in joint["steps"].items()}
+        out.update(
+            window="fit",
+            held_out_loss=d_held,
+            gain=excess_gain(d_held, base["d_held_out"], floor["held_out"], margin),
+            gain_without_controls=excess_gain(d_alone, base["d_held_out"], floor["held_out"], margin),
+        )
+    out["future_loss"] = d_future
+    out["future_gain"] = None if d_future is None else excess_gain(d_future, base["d_future"], floor["future"], margin)
+    return out
 
 
 def candidate_record(cand, fit, held: tuple, future: tuple, margin: float, joint: dict | None, **extra) -> dict:

@@ -409,10 +409,13 @@ def summary(results: dict) -> dict:
     injected = [r for r in ok if r["expected"] != "none"]
     per_effect = {}
     for r in injected:
-        e = per_effect.setdefault(r["effect"], {"cases": 0, "named": 0, "gains": []})
+        e = per_effect.setdefault(r["effect"], {"cases": 0, "named": 0, "gains": [], "truth_gains": []})
         e["cases"] += 1
         e["named"] += int(r["correct"])
         e["gains"].append(r["candidates"].get(_candidate_of(r["expected"]), {}).get("gain"))
+        # the largest held-out gain at the injected truth of the candidates that model it (None: not judged)
+        at_truth = [c["truth_gain"] for c in r["candidates"].values() if c.get("truth_gain") is not None]
+        e["truth_gains"].append(max(at_truth) if at_truth else None)
     misses = {"below_reach": [], "within_reach": [], "not_judged_at_truth": []}
     for r in injected:
         if r["correct"]:

@@ -194,3 +194,23 @@ def test_drag_is_named_and_the_driver_prints_json(tiny):
     res = last["residuals"]  # drag 4/s: the images fall slower than the base model, and drag fits that
     assert res["gravity_ratio_observed"] < res["gravity_ratio_simulated"] - 0.2, res
     assert 2.0 < res["drag_per_s_observed"] < 6.0 and res["drag_per_s_simulated"] < 1.0, res
+
+
+def test_the_profile_command_scores_settings_and_replaced_values(tiny):
+    """evaluation/discrepancy_profile.py: the run's own model against a moved ground on its own
+    sequence (fitted on the recorded ground, so moving it costs), the same values read back from the
+    run's dynamic stage give the same D, and a setting that is not physics.* is refused."""
+    from evaluation.discrepancy_profile import identified_values, main, profile
+
+    _, overrides, run_dir, size = tiny
+    cfg = OmegaConf.to_object(compose([*overrides, f"diagnose.run={run_dir}"]))
+    out = profile(cfg, [{}, {"ground_offset": 0.1 * size}])
+    base, level, moved = out["rows"]
+    assert base["settings"] == "base" and level["d_held_out"] == base["d_held_out"] and level["gain"] == 0.0
+    assert moved["d_fit"] > level["d_fit"] and moved["gain"] < 0, out
+    assert level["d_held_out"] > out["floor_held_out"] > 0, out
+    again = profile(cfg, [{}], values_from=identified_values(run_dir))
+    assert again["rows"][1]["d_held_out"] == pytest.approx(level["d_held_out"], rel=1e-6)
+    late = profile(cfg, [{}], first=3, uniform_k=True)
+    assert late["frames"][0] == 3 and np.isfinite(late["rows"][1]["d_fit"])
+    assert main([str(run_dir), '{"not_a_setting": 1}', *(f"--set={o}" for o in overrides)]) == 2

@@ -291,6 +291,8 @@ def test_a_miss_is_below_reach_when_even_the_truth_gains_too_little(monkeypatch)
     }
     assert "[truth 0.600]" in S.markdown(results)
     # a named case is no miss, whatever its truth gain
-    results["named"] = _rec("c-ground_offset-named", "ground_plane", "ground_plane", {"ground_plane": 0.4, "ground_tilt": 0.1})
-    results["named"]["candidates"]["ground_plane"]["truth_gain"] = 0.05
+    results["c-ground_offset-named"] = _rec(
+        "c-ground_offset-named", "ground_plane", "ground_plane", {"ground_plane": 0.4, "ground_tilt": 0.1}
+    )
+    results["c-ground_offset-named"]["candidates"]["ground_plane"]["truth_gain"] = 0.05
     assert "c-ground_offset-named" not in sum(S.summary(results)["missed"].values(), [])

@@ -59,7 +59,7 @@ def profile(cfg, settings: list[dict], first: int = 1, image_size: int = 0, unif
     """Rows {settings, d_fit, d_held_out, gain} for each entry of `settings` (module docstring)."""
     from sgdr.discrepancy.candidates import Evaluator
     from sgdr.discrepancy.measures import MEASURES
-    from sgdr.discrepancy.run import excess_gain
+    from sgdr.discrepancy.run import excess_gain, frame0_floor
     from sgdr.physics.config import PhysicsConfig
     from sgdr.posterior.rollouts import ROLLOUTS
     from sgdr.posterior.run import run_asset_and_sequence
@@ -83,8 +83,7 @@ def profile(cfg, settings: list[dict], first: int = 1, image_size: int = 0, unif
     obs_held = measure.observe(seq, held_views, frames, dc, cfg.seed)
     score = measure.scorer(asset, dc, cfg.render, cfg.seed)
     ev = Evaluator(asset, ROLLOUTS.get_named(dc.rollout, "diagnose.rollout"), obs_fit, obs_held, None, score)
-    zero = measure.observe(seq, held_views, np.array([0]), dc, cfg.seed)
-    floor = float(frames.size * np.sum(score(zero, ev.positions({}))))
+    floor = frame0_floor(measure, seq, held_views, frames.size, dc, cfg.seed, score, ev.positions({}))
     repl = dict(values_from or {})
     n_anchors = np.asarray(asset.values["log10_k"]).shape
     if "log10_k" in repl and np.asarray(repl["log10_k"]).shape != n_anchors:

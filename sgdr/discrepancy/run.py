@@ -49,6 +49,14 @@ def excess_gain(d: float, d_base: float, floor: float | None, margin: float = 0.
     return (float(d_base) - float(d)) / room
 
 
+def frame0_floor(measure, seq, views, n_frames: int, dc, seed, score, positions) -> float:
+    """The floor of a gain: frame 0's D in `views` (the rest state, which no extension changes),
+    once per frame of an observation of `n_frames` frames; `positions` any rollout's [T, N_A, 3]
+    (frame 0 is the rest state in each)."""
+    zero = measure.observe(seq, views, np.array([0]), dc, seed)
+    return float(n_frames * np.sum(score(zero, positions)))
+
+
 def threshold(dc, name: str) -> float:
     """The held-out gain candidate `name` needs to be named: `diagnose.min_gain_by_candidate[name]`,
     else `diagnose.min_gain`."""
@@ -161,8 +169,7 @@ def run_diagnosis(cfg) -> dict:
     # frame of the observation: what the asset's appearance leaves that no dynamics can remove
     floor = {}
     for key, vs, n in (("held_out", held_views, fit_frames.size), ("future", views, future.size)):
-        zero = measure.observe(seq, vs, np.array([0]), dc, cfg.seed)
-        floor[key] = float(n * np.sum(score(zero, ev.positions({})))) if n else None
+        floor[key] = frame0_floor(measure, seq, vs, n, dc, cfg.seed, score, ev.positions({})) if n else None
     base["floor_held_out"], base["floor_future"] = floor["held_out"], floor["future"]
     # v0 is refitted with gravity and drag only on the sequence the run fitted it to (its
     # pre-hit frames under the base model); another sequence (a twin) keeps the asset's v0
@@ -369,8 +376,7 @@ def free_flight(seq, asset, measure, dc, seed, fit_views, held_views, fit_frames
             log.info("diagnose: %d free-flight frames before the base's contact: no free-flight window", frames.size)
             return None
         ev, obs_fit, obs_held = evaluator(frames)
-    zero = measure.observe(seq, held_views, np.array([0]), fdc, seed)
-    floor = float(frames.size * np.sum(score(zero, ev.positions({}))))
+    floor = frame0_floor(measure, seq, held_views, frames.size, fdc, seed, score, ev.positions({}))
     base = {"d_fit": ev.d({}, obs_fit), "d_held_out": ev.d({}, obs_held), "floor_held_out": floor}
     record = {"frames": frames.tolist(), "hit_frame": int(seq.hit_frame), "base_hit_frame": base_hit, "base": base}
     return {"ev": ev, "base": base, "floor": floor, "record": record}
@@ -425,13 +431,17 @@ def judge_truth(cand, at: tuple, flight: dict | None, ev, refit_state, ctx, base
     its fit is: from the refit base, in the free-flight window when `flight` is given (no controls
     refitted), else on the fit window with the controls refitted beside it. Returns the values,
     the held-out loss and gain (and the gain with no controls refitted), the future gain."""
-    values, variant = at
     saved = ctx.values
-    ctx.values = refit_state[2]
+    ctx.values = refit_state[2]  # the candidate applied to, and the controls refitted on, the refit base
     try:
-        settings, repl = cand.apply(ctx, values, variant)
+        return _judge_truth(cand, at, flight, ev, refit_state, ctx, base, floor, dc)
     finally:
         ctx.values = saved
+
+
+def _judge_truth(cand, at: tuple, flight: dict | None, ev, refit_state, ctx, base, floor, dc) -> dict:
+    values, variant = at
+    settings, repl = cand.apply(ctx, values, variant)
     margin = float(dc.floor_margin)
     out = {"values": values, "variant": variant, "settings": {f"physics.{k}": v for k, v in settings.items()}}
     ev.reset(refit_state[0], refit_state[1])
@@ -448,12 +458,7 @@ def judge_truth(cand, at: tuple, flight: dict | None, ev, refit_state, ctx, base
         d_alone = ev.d(settings, ev.obs_held, repl)
         d_held = d_alone
         if dc.rebase:
-            saved = ctx.values
-            ctx.values = refit_state[2]
-            try:
-                joint = refit_controls(ev, ctx, dc, max(4, int(dc.evaluations) // 2), settings, repl)
-            finally:
-                ctx.values = saved
+            joint = refit_controls(ev, ctx, dc, max(4, int(dc.evaluations) // 2), settings, repl)
             d_held, d_future = joint["d_held_out"], joint["d_future"]
             out["controls"] = {n: st["values"] for n, st in joint["steps"].items()}
         out.update(

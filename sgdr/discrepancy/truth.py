@@ -144,7 +144,8 @@ def truth_values(name: str, truth: dict | None, scene: dict) -> tuple[dict, obje
     if not truth or not truth.get("active"):
         return None
     if "physics" in truth:  # a twin: its fields (e.g. a stiffness field) map to no candidate's values
-        return (TWIN[name](truth["physics"]), None) if name in TWIN and TWIN[name](truth["physics"]) else None
+        values = TWIN[name](truth["physics"]) if name in TWIN else None
+        return (values, None) if values else None
     if name not in TRUTH:
         return None
     values = TRUTH[name](truth, scene)

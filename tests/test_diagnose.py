@@ -136,6 +136,34 @@ def test_a_moved_ground_is_named_with_its_offset(tiny):
     assert 'id="discrepancy-truth"' in Path(r["report"]).read_text()
 
 
+def test_weaker_gravity_is_named_with_its_scale(tiny):
+    r = diagnose(tiny, {"gravity_scale": 0.8}, "gravity", "diagnose.candidates=[gravity,air_drag,ground_plane]")
+    c = _named(r, "gravity")
+    assert c["value"] == pytest.approx(0.8, abs=0.05), c
+    assert r["candidates"]["gravity"]["window"] == "free_flight"
+    at_truth = r["candidates"]["gravity"]["truth"]
+    assert at_truth["values"] == {"value": pytest.approx(0.8)} and at_truth["gain"] >= 0.3, at_truth
+
+
+def test_a_tilted_ground_is_named_with_its_tilt(tiny):
+    tilt, azimuth = 8.0, 30.0
+    r = diagnose(
+        tiny,
+        {"ground_tilt_deg": tilt, "ground_tilt_azimuth_deg": azimuth},
+        "tilt",
+        "diagnose.candidates=[ground_plane,ground_tilt,plasticity]",
+    )
+    _named(r, "ground_plane")
+    c = r["candidates"]["ground_tilt"]
+    assert c["decision"] == "cause", {k: (v["gain"], v["decision"]) for k, v in r["candidates"].items()}
+    v = c["values"]
+    assert np.hypot(v["tilt_a_deg"], v["tilt_b_deg"]) == pytest.approx(tilt, abs=3.0), v
+    fitted = np.array([v["tilt_a_deg"], v["tilt_b_deg"]])
+    true = tilt * np.array([np.cos(np.radians(azimuth)), np.sin(np.radians(azimuth))])
+    assert fitted @ true / (np.linalg.norm(fitted) * tilt) > np.cos(np.radians(30.0)), v  # towards the true side
+    assert c["truth"]["gain"] >= 0.3, c["truth"]
+
+
 def test_plasticity_is_named_with_its_yield_strain(tiny):
     r = diagnose(
         tiny,

@@ -296,3 +296,35 @@ def test_a_miss_is_below_reach_when_even_the_truth_gains_too_little(monkeypatch)
     )
     results["c-ground_offset-named"]["candidates"]["ground_plane"]["truth_gain"] = 0.05
     assert "c-ground_offset-named" not in sum(S.summary(results)["missed"].values(), [])
+
+
+@pytest.mark.slow
+def test_the_suite_names_gravity_injected_into_the_mpm_and_none_on_its_null(tmp_path, capsys):
+    """End to end at tiny (about a minute a case): the MPM generator injects a stronger gravity
+    (drag cannot mimic it) that sequence.json does not record, the pipeline reconstructs it with
+    the nominal 9.8, and the diagnosis names gravity near the true scale; the null sequence is
+    `none`. A second call finds both cases finished and runs nothing. (The torus at 1.3 is below
+    reach at tiny: its truth gains 0.14, under the threshold 0.15.)"""
+    args = [
+        "--preset", "tiny", "--threads", "2",
+        "--results", str(tmp_path / "results.jsonl"),
+        "--data-dir", str(tmp_path / "data"),
+        "--output-dir", str(tmp_path / "outputs"),
+        "--case", "cross:gravity:1.3:0",
+        "--case", "cross:none:0:0",
+    ]  # fmt: skip
+    assert S.main(args) == 0
+    recs = S.read_results(tmp_path / "results.jsonl")
+    grav, null = recs["cross-gravity-1.3-s0"], recs["cross-none-0-s0"]
+    assert grav["status"] == "ok" and null["status"] == "ok", (grav, null)
+    assert json.loads((tmp_path / "data" / grav["id"] / "sequence.json").read_text())["gravity"] == pytest.approx(
+        [0.0, 0.0, -9.8]
+    )  # the truth is in gt/effects.json only
+    g = grav["candidates"]["gravity"]
+    assert grav["cause"] == "gravity" and grav["correct"], {k: v["gain"] for k, v in grav["candidates"].items()}
+    assert 1.15 <= g["value"] <= 1.4 and g["gain"] >= 0.3, g
+    assert g["truth_values"] == {"value": pytest.approx(1.3)} and g["truth_gain"] >= 0.3, g
+    assert null["cause"] == "none", {k: v["gain"] for k, v in null["candidates"].items()}
+    capsys.readouterr()
+    assert S.main(args) == 0
+    assert "0 of 2 cases to run" in capsys.readouterr().out

@@ -328,3 +328,16 @@ def test_the_suite_names_gravity_injected_into_the_mpm_and_none_on_its_null(tmp_
     capsys.readouterr()
     assert S.main(args) == 0
     assert "0 of 2 cases to run" in capsys.readouterr().out
+
+
+def test_a_ground_named_through_the_tilt_counts_the_tilts_gain(monkeypatch):
+    """The tilt and the offset both stand for ground_plane: a case named through the tilt reports
+    the tilt's gain, not the offset's."""
+    monkeypatch.setattr(S, "method_thresholds", lambda method: {"ground_plane": 0.2, "ground_tilt": 0.5})
+    rec = {
+        **_rec("t-ground_tilt", "ground_plane", "ground_plane", {"ground_plane": 0.05, "ground_tilt": 0.7}),
+        "tilt_generator": "plane_frame",
+    }
+    s = S.summary({"t-ground_tilt": rec})
+    assert s["injected_named_share"] == 1.0 and s["named_gain_share_ge_0.3"] == 1.0
+    assert s["per_effect"]["ground_tilt"]["gains"] == [0.7]

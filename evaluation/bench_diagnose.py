@@ -9,8 +9,9 @@ sequence (`run_diagnosis`: the base refit, every candidate, the residual diagnos
 report section). Reported: both wall times, their ratio `diagnose_over_reconstruct` (the
 machine-independent figure: how many reconstructions one diagnosis costs), and the issue's
 absolute budget for the preset (2 min at tiny, 10 min at small on the 2-core development
-machine) with `within_budget`, which only means something on that machine. The Dr.Jit kernel cache (~/.drjit) is left as it is: a first run on a fresh machine
-includes compilation in both times.
+machine) with `within_budget`, which only means something on that machine. The Dr.Jit kernel
+cache (~/.drjit) is left as it is: a first run on a fresh machine includes compilation in both
+times.
 """
 
 from __future__ import annotations

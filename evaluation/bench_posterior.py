@@ -4,7 +4,7 @@ What a posterior sampler pays per likelihood: forward rollouts of S parameter sa
 asset. At the small preset (N_A = 512 anchors, n_k = 64 springs each, n_t = 100 substeps,
 30 frames at 24 fps; directed springs, official law, project contact: the default physics)
 it measures, for S = 1, 8, 32, on the active Dr.Jit backend (LLVM by default):
-- `sgdr.posterior.batched_rollout` of the S samples in one S x N_A program;
+- `sgdr.physics.batched.batched_rollout` of the S samples in one S x N_A program;
 - the same S samples as S single `sgdr.physics.rollout` calls, one after the other (no
   gradients, positions read back per frame as the batch does), in the same run;
 and reports rollouts per second of each and the speed-up (single time / batched time). Both
@@ -152,7 +152,7 @@ def run() -> dict:
     import sgdr.backend as backend
 
     b = backend.init("llvm") if backend._current is None else backend.current()
-    from sgdr.posterior.batched import batched_rollout
+    from sgdr.physics.batched import batched_rollout
 
     log = lambda msg: print(f"[bench posterior] {msg}", file=sys.stderr, flush=True)  # noqa: E731
     cfg, model, params, ground = _asset()

@@ -85,6 +85,7 @@ SECTION_CHECKS = {
     "synth.effects": synth_config.EFFECTS_CHECKS,
     "recon": recon_config.CHECKS,
     "recon.simulate": recon_config.SIMULATE_CHECKS,
+    "recon.search": recon_config.SEARCH_CHECKS,
     "oracle": oracle_config.CHECKS,
     "tracking": tracking_config.CHECKS,
     "posterior": posterior_config.CHECKS,
@@ -109,8 +110,23 @@ def _in_k_bounds(cfg) -> str | None:
     return None
 
 
+def _search_ranges(cfg) -> str | None:
+    s = cfg.recon.search
+    bad = [n for n in s.parameters if not float(getattr(s, f"{n}_range")[0]) < float(getattr(s, f"{n}_range")[1])]
+    if bad:
+        return "; ".join(f"recon.search.{n}_range={list(getattr(s, f'{n}_range'))} must be [low, high], low < high" for n in bad)
+    k = list(s.log10_k_range)
+    if "log10_k" in s.parameters and not (cfg.recon.log10_k_min <= k[0] and k[1] <= cfg.recon.log10_k_max):
+        return (
+            f"recon.search.log10_k_range={k} must lie within [recon.log10_k_min, recon.log10_k_max] = "
+            f"[{cfg.recon.log10_k_min}, {cfg.recon.log10_k_max}]"
+        )
+    return None
+
+
 # Rules between fields: each returns None or the error line (naming every key involved).
 RULES = (
+    _search_ranges,
     lambda c: (
         None
         if c.anchors.n_k < c.anchors.n_anchors

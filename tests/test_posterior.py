@@ -111,8 +111,7 @@ def test_logit_space_samples_the_box_prior_itself():
 
 
 def test_an_upscaled_camera_sees_the_same_view_finer():
-    from sgdr.cameras import Camera
-    from sgdr.discrepancy.measures import downscaled
+    from sgdr.cameras import Camera, downscaled
     from sgdr.posterior.twin import upscaled
 
     cam = Camera.look_at([2.0, 0.5, 1.0], [0.0, 0.0, 0.3], [0, 0, 1], 40.0, 32, 24, "v")

@@ -226,7 +226,7 @@ class Observation:
 def observe(seq, cfg) -> Observation:
     """Views (all, or `n_views` evenly spread) and fit frames 1.. (every `frame_stride`-th, the
     last fit frame always) at most `max_image_size` pixels wide."""
-    from sgdr.discrepancy.measures import block_mean, downscale_factor, downscaled
+    from sgdr.cameras import block_mean, downscale_factor, downscaled
 
     n_v = len(seq.cameras)
     views = np.arange(n_v) if not cfg.n_views or cfg.n_views >= n_v else np.linspace(0, n_v - 1, cfg.n_views)

@@ -51,6 +51,7 @@ frame 0 over all fit frames and all views (`eval_loss_initial`, `eval_loss_final
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 from collections.abc import Callable
@@ -79,6 +80,9 @@ class DynamicsResult:
     eval_loss_initial: float = float("nan")  # all views, all fit frames, before training
     eval_loss_final: float = float("nan")  # the same after training
     k_grid: dict[str, float] = field(default_factory=dict)  # uniform log10 k -> rollout loss (recon.log10_k_grid)
+    search: dict = field(default_factory=dict)  # the global stage (GlobalSearchResult.to_json); {} without one
+    field_prior: dict = field(default_factory=dict)  # the prior's choice: strengths, held-out losses, chosen λ
+    best_pass: int = -1  # the pass whose parameters were kept (recon.eval_every; -1: the start, none improved it)
 
 
 def learnable_names(physics_cfg) -> list[str]:
@@ -147,9 +151,10 @@ def _with_opt(params, opt, cfg: ReconConfig):
 
 
 def rollout_loss(
-    model, params, binding, gaussians, v0, ground, targets, cameras, dt, n_t, physics_cfg, render_cfg, lam
+    model, params, binding, gaussians, v0, ground, targets, cameras, dt, n_t, physics_cfg, render_cfg, lam, frames=None
 ) -> float:
-    """Forward-only mean loss over fit frames 1..n_fit-1 and all views of a rollout from rest.
+    """Forward-only mean loss over `frames` (default: fit frames 1..n_fit-1) and all views of a
+    rollout from rest (open loop: frame 0 is the only state given).
 
     targets: [n_fit] lists of TensorXf [H, W, 3] per view; v0 [3]; dt seconds per frame.
     """
@@ -161,7 +166,7 @@ def rollout_loss(
         state0 = SimState.at_rest(model, v0)
         states = rollout(model, params.detach(), state0, ground, len(targets), dt, physics_cfg, n_substeps=n_t)
         total, count = 0.0, 0
-        for f in range(1, len(targets)):
+        for f in range(1, len(targets)) if frames is None else frames:
             g = posed(gaussians, binding.apply(states[f].x))
             for v, cam in enumerate(cameras):
                 total += scalar(image_loss(render(g, cam, render_cfg).rgb, targets[f][v], lam))
@@ -179,6 +184,60 @@ def _frame_loss(gaussians, binding, x, targets_f, cameras, views, render_cfg, la
     for v in views:
         loss = loss + image_loss(render(g, cameras[int(v)], render_cfg).rgb, targets_f[int(v)], lam)
     return loss / float(len(views))
+
+
+@dataclass(frozen=True)
+class FieldPrior:
+    """The stiffness field's prior: log10 k_i = L + δ_i around the global level L, and
+
+        P(δ) = λ / N_A Σ_i [ (1/n_k) Σ_{j ∈ springs of i} (δ_i - δ_j)² + r δ_i² ]
+
+    smoothness over the spring graph plus shrinkage to the level (r = recon.field_shrink). A
+    homogeneous object's field then has nothing to gain from noise, and a field with regions
+    (torus_hetero's halves) pays only along their border. λ is chosen on held-out time
+    (`fit_dynamics`). Its value and gradient are computed on the host (N_A values, bincount
+    sums in a fixed order): the gradient is added to the rendered loss's before each Adam step."""
+
+    strength: float  # λ
+    shrink: float  # r
+    level: float  # L, the global level
+    source: np.ndarray  # [N_A n_k] int64 anchor i of each spring
+    target: np.ndarray  # [N_A n_k] int64 anchor j of each spring
+    n_k: int
+
+    @staticmethod
+    def of(model, strength: float, shrink: float, level: float) -> FieldPrior:
+        j = to_numpy(model.spring_j, np.int64)
+        return FieldPrior(float(strength), float(shrink), float(level), np.arange(j.size) // model.n_k, j, model.n_k)
+
+    def value(self, log10_k: np.ndarray) -> float:
+        d = np.asarray(log10_k, float) - self.level
+        n = d.size
+        return self.strength / n * (np.sum((d[self.source] - d[self.target]) ** 2) / self.n_k + self.shrink * d @ d)
+
+    def gradient(self, log10_k: np.ndarray) -> np.ndarray:
+        """dP/d log10 k_i, [N_A] float64."""
+        d = np.asarray(log10_k, float) - self.level
+        n = d.size
+        diff = d[self.source] - d[self.target]  # [N_A n_k]
+        g = np.bincount(self.source, weights=diff, minlength=n) - np.bincount(self.target, weights=diff, minlength=n)
+        return self.strength / n * (2.0 / self.n_k * g + 2.0 * self.shrink * d)
+
+
+def condition_gradients(p: _Pass, opt) -> None:
+    """Before an Adam step: add the field prior's gradient to log10 k's, then clip each
+    parameter's gradient to the norm recon.grad_clip (a rare frame with a huge gradient would
+    otherwise fill Adam's second moment and stall that parameter for many steps)."""
+    if p.prior is not None and dr.width(opt["log10_k"]) > 1:
+        k = to_numpy(dr.detach(opt["log10_k"]))
+        g = to_numpy(dr.grad(opt["log10_k"])) + p.prior.gradient(k)
+        dr.set_grad(opt["log10_k"], type(opt["log10_k"])(g.astype(np.float32)))
+    if p.grad_clip > 0:
+        for name in opt.keys():
+            g = to_numpy(dr.grad(opt[name]))
+            norm = float(np.sqrt(np.sum(g * g)))
+            if np.isfinite(norm) and norm > p.grad_clip:
+                dr.set_grad(opt[name], type(opt[name])((g * (p.grad_clip / norm)).astype(np.float32)))
 
 
 @dataclass
@@ -199,6 +258,8 @@ class _Pass:
     render_cfg: object
     lam: float  # λ of the loss
     per_frame: int  # cameras rendered per frame
+    prior: FieldPrior | None = None  # the stiffness field's prior (its gradient is added before each step)
+    grad_clip: float = 0.0  # each parameter's gradient norm clipped to this (0: not clipped)
 
 
 # How one pass over the fit frames trains (`recon.mode`): (pass inputs, Adam, rng, n_t) ->
@@ -237,6 +298,7 @@ def pass_truncated(p: _Pass, opt, rng, n_t: int) -> tuple[list[float], int]:
             n_t = more
             log.warning("dynamics: non-finite frame %d, n_t raised to %d", f, n_t)
         dr.backward(loss)
+        condition_gradients(p, opt)
         finite_step(opt, p.cfg)
         frame_losses.append(value)
         state = new.detach()
@@ -273,6 +335,7 @@ def pass_full(p: _Pass, opt, rng, n_t: int) -> tuple[list[float], int]:
     if not math.isfinite(scalar(loss)):
         raise RuntimeError(f"dynamics (full): non-finite loss with n_t={states.n_substeps}; raise physics.n_substeps")
     dr.backward(loss)
+    condition_gradients(p, opt)
     finite_step(opt, p.cfg)
     return frame_losses, n_t
 
@@ -298,6 +361,119 @@ def finite_step(opt, cfg) -> bool:
     return False
 
 
+def _cosine_lr(cfg: ReconConfig, it: int, iterations: int) -> float:
+    """The learning-rate factor of pass `it`: cosine from 1 to recon.lr_decay over the passes."""
+    d = float(cfg.lr_decay)
+    if iterations <= 1 or d >= 1.0:
+        return 1.0
+    return d + (1.0 - d) * 0.5 * (1.0 + math.cos(math.pi * it / (iterations - 1)))
+
+
+@dataclass
+class _Train:
+    """One local fit's outcome: the kept parameters and what training saw."""
+
+    params: object  # PhysParams, detached: the best evaluated (or the last) parameters
+    pass_losses: list[float]
+    n_t: int
+    eval_loss: float  # all-view rollout loss of `params` on the training frames (nan when not evaluated)
+    best_pass: int
+
+
+def _train(
+    inputs: _Pass,
+    opt,
+    start: int,
+    iterations: int,
+    seed: int,
+    schedule: Callable[[int], int],
+    n_t_floor: int,
+    evaluate: Callable[[object], float] | None,
+    best: tuple[float, int, dict] | None,
+    ckpt=None,
+    ckpt_extra: dict | None = None,
+    on_pass=None,
+    progress: bool = False,
+    pass_losses: list[float] | None = None,
+) -> _Train:
+    """Adam passes `start` .. iterations-1 (recon.mode), with the learning-rate schedule; every
+    recon.eval_every passes the parameters are scored by `evaluate` and the best kept. `best`:
+    (loss, pass, Adam values) to beat, e.g. the start's."""
+    cfg = inputs.cfg
+    train_pass = RECON_MODES.get_named(cfg.mode)
+    pass_losses = list(pass_losses or [])
+    lrs = {name: _lr(cfg, name) for name in opt.keys()}
+    passes = range(start, int(iterations))
+    if progress:
+        from tqdm import tqdm
+
+        passes = tqdm(passes, desc=f"dynamics ({cfg.mode})", initial=start, total=int(iterations), leave=False)
+    n_t = max(schedule(start), n_t_floor)
+    every = int(cfg.eval_every)
+    for it in passes:
+        rng = np.random.default_rng([int(seed), it])
+        n_t = max(schedule(it), n_t_floor)
+        factor = _cosine_lr(cfg, it, int(iterations))
+        opt.set_learning_rate({name: lr * factor for name, lr in lrs.items()})
+        frame_losses, n_t_after = train_pass(inputs, opt, rng, n_t)
+        if n_t_after > n_t:
+            n_t = n_t_floor = n_t_after
+        pass_losses.append(float(np.mean(frame_losses)))
+        if evaluate is not None and every > 0 and ((it + 1) % every == 0 or it + 1 == int(iterations)):
+            loss = evaluate(_with_opt(inputs.base, opt, cfg).detach())
+            log.info("dynamics: pass %d all-view rollout loss %.5f", it, loss)
+            if best is None or loss < best[0]:
+                best = (loss, it, {name: to_numpy(dr.detach(opt[name])) for name in opt.keys()})
+        if on_pass is not None:
+            on_pass(it, pass_losses[-1], n_t)
+        if progress:
+            passes.set_postfix(loss=f"{pass_losses[-1]:.4f}", n_t=n_t)
+        if ckpt is not None and cfg.checkpoint_every > 0 and (it + 1) % cfg.checkpoint_every == 0:
+            extra = dict(ckpt_extra or {})
+            if best is not None:
+                extra.update({"best/loss": np.float64(best[0]), "best/pass": np.int64(best[1])})
+                extra.update({f"best/{k}": v for k, v in best[2].items()})
+            ckpt.save(
+                it + 1,
+                {
+                    **adam_to_numpy(opt),
+                    "pass_losses": np.asarray(pass_losses),
+                    "n_t_floor": np.int64(n_t_floor),
+                    **extra,
+                },
+            )
+    if best is not None and every > 0:
+        t = type(dr.detach(opt["friction"]))
+        values = {name: t(v.astype(np.float32)) for name, v in best[2].items()}
+        params = replace(
+            inputs.base,
+            **{**values, "log10_k": STIFFNESS[cfg.stiffness].field(values["log10_k"], dr.width(inputs.base.log10_k))},
+        )
+        dr.make_opaque(params)
+        return _Train(params.detach(), pass_losses, n_t, float(best[0]), int(best[1]))
+    return _Train(_with_opt(inputs.base, opt, cfg).detach(), pass_losses, n_t, float("nan"), int(iterations) - 1)
+
+
+def _start_values(base, physics_cfg, stiffness) -> dict:
+    values = {name: getattr(base, name) for name in learnable_names(physics_cfg)}
+    values["log10_k"] = stiffness.variable(base.log10_k)
+    return values
+
+
+def _with_values(base, values: dict):
+    """`base` with global values {log10_k: a uniform level, kappa, friction, restitution}."""
+    t_f = type(base.friction)
+    fields = {}
+    for name, v in values.items():
+        if name == "log10_k":
+            fields[name] = dr.full(type(base.log10_k), float(v), dr.width(base.log10_k))
+        else:
+            fields[name] = t_f(float(v))
+    out = replace(base, **fields)
+    dr.make_opaque(out)
+    return out
+
+
 def fit_dynamics(
     model,
     binding,
@@ -315,17 +491,23 @@ def fit_dynamics(
     ckpt=None,
     on_pass: Callable[[int, float, int], None] | None = None,
     progress: bool = False,
+    n_predict: int = 0,
 ) -> DynamicsResult:
     """Identify log10 k_i, κ, friction (and restitution) from the fit frames.
 
     model: SpringModel; binding: IDWBinding; gaussians: refined Gaussians (appearance fixed);
     v0 [3], gravity [3]: from stage 4 and the sequence; ground: physics Ground; targets:
     [n_fit][n_views] TensorXf [H, W, 3]; fps: frames per second. ckpt: a stage Checkpoint or
-    None. on_pass(pass, mean loss, n_t) is called after every pass (tracking).
+    None. on_pass(pass, mean loss, n_t) is called after every pass (tracking). n_predict: the
+    frames the asset will predict (the global stage's landscape compares the futures of its
+    best candidates up to it; 0: n_fit).
+
+    The order (module docstring): the start (recon.log10_k_grid, or the global search of
+    recon.search.parameters), the prior's strength chosen on held-out time
+    (recon.field_prior_strengths), then the local Adam passes on all fit frames.
     """
     from sgdr.physics import PhysParams
 
-    train_pass = RECON_MODES.get_named(cfg.mode)
     stiffness = STIFFNESS.get_named(cfg.stiffness)
     n_fit = len(targets)
     if n_fit < 2:
@@ -334,114 +516,227 @@ def fit_dynamics(
     lam = float(cfg.lambda_dssim)
     per_frame = max(1, min(int(cfg.cameras_per_frame), len(cameras)))
     base = PhysParams.init(model, physics_cfg, v0=tuple(map(float, v0)), gravity=tuple(map(float, gravity)))
+    g = gaussians.detach()
+    iterations = int(cfg.iterations)
 
     def schedule(it: int) -> int:
         return substeps_at(physics_cfg.n_substeps, list(cfg.substep_growth), it, cfg.iterations)
 
     n_t0 = schedule(0)
+    n_t_final = schedule(max(iterations - 1, 0))  # the n_t the prediction uses
+
+    def evaluate_on(frames):
+        return lambda params: rollout_loss(
+            model, params, binding, g, v0, ground, targets, cameras, dt, n_t_final, physics_cfg, render_cfg, lam, frames
+        )
+
     resumed = ckpt.load() if ckpt is not None else None
-    k_grid: dict[str, float] = {}
-    if resumed is None and cfg.log10_k_grid:
-        # ---- coarse start: the rollout loss is rugged in the global stiffness (bounces and
-        # contacts shift in time), its local gradient does not point to the best basin
-        for value in cfg.log10_k_grid:
-            trial = replace(base, log10_k=dr.full(type(base.log10_k), float(value), model.n_anchors))
-            k_grid[f"{float(value):g}"] = rollout_loss(
+    start_info = (
+        json.loads(str(resumed[1]["start_info"])) if resumed is not None and "start_info" in resumed[1] else None
+    )
+
+    # ---- 1. the start: the global search, or the coarse grid, or physics.*_init
+    if start_info is None:
+        start_info = {"k_grid": {}, "search": {}, "values": {}}
+        if cfg.search.parameters:
+            from sgdr.identify.global_search import PopulationScorer, global_search, landscape, search_space
+
+            space = search_space(cfg.search, physics_cfg, model, dt, n_t_final)
+            scorer = PopulationScorer(
                 model,
-                trial,
                 binding,
-                gaussians.detach(),
-                v0,
+                g,
+                base,
                 ground,
                 targets,
                 cameras,
                 dt,
-                n_t0,
+                n_t_final,
                 physics_cfg,
                 render_cfg,
                 lam,
+                cfg.search.image_scale,
             )
-        best = min(k_grid, key=k_grid.get)
-        log.info("dynamics: uniform log10 k grid %s -> start at %s", k_grid, best)
-        base = replace(base, log10_k=dr.full(type(base.log10_k), float(best), model.n_anchors))
-        dr.make_opaque(base.log10_k)
-    start_values = {name: getattr(base, name) for name in learnable_names(physics_cfg)}
-    start_values["log10_k"] = stiffness.variable(base.log10_k)
-    opt = make_adam({name: (value, _lr(cfg, name)) for name, value in start_values.items()})
-    g = gaussians.detach()
-    inputs = _Pass(
-        model,
-        binding,
-        g,
-        base,
-        tuple(map(float, v0)),
-        ground,
-        targets,
-        cameras,
-        dt,
-        physics_cfg,
-        cfg,
-        render_cfg,
-        lam,
-        per_frame,
-    )
+            init = {
+                n: scalar(getattr(base, n)) if n != "log10_k" else float(physics_cfg.log10_k_init) for n in space.names
+            }
+            found = global_search(scorer, space, init, cfg.search, seed, progress)
+            found.landscape = landscape(scorer, found, cfg.search, max(int(n_predict), n_fit), n_fit)
+            start_info["search"] = found.to_json()
+            start_info["values"] = dict(found.best)
+            log.info("dynamics: global search -> %s (loss %.5f)", found.best, found.best_loss)
+        elif cfg.log10_k_grid:
+            # the rollout loss is rugged in the global stiffness (bounces and contacts shift in time)
+            for value in cfg.log10_k_grid:
+                trial = _with_values(base, {"log10_k": float(value)})
+                start_info["k_grid"][f"{float(value):g}"] = rollout_loss(
+                    model, trial, binding, g, v0, ground, targets, cameras, dt, n_t0, physics_cfg, render_cfg, lam
+                )
+            best = min(start_info["k_grid"], key=start_info["k_grid"].get)
+            log.info("dynamics: uniform log10 k grid %s -> start at %s", start_info["k_grid"], best)
+            start_info["values"] = {"log10_k": float(best)}
+    base = _with_values(base, start_info["values"])
+    level = float(start_info["values"].get("log10_k", physics_cfg.log10_k_init))
 
-    # ---- resume or start
-    start, pass_losses, n_t_floor = 0, [], 0
-    eval_initial = float("nan")
-    if resumed is not None:
-        start, arrays = resumed
-        adam_from_numpy(opt, arrays)
-        pass_losses = [float(x) for x in arrays["pass_losses"]]
-        n_t_floor = int(arrays["n_t_floor"])
-        eval_initial = float(arrays["eval_loss_initial"])
-    elif k_grid:
-        eval_initial = min(k_grid.values())
-    else:
-        eval_initial = rollout_loss(
-            model, base, binding, g, v0, ground, targets, cameras, dt, n_t0, physics_cfg, render_cfg, lam
+    def inputs_for(frame_targets, prior):
+        p = _Pass(
+            model,
+            binding,
+            g,
+            base,
+            tuple(map(float, v0)),
+            ground,
+            frame_targets,
+            cameras,
+            dt,
+            physics_cfg,
+            cfg,
+            render_cfg,
+            lam,
+            per_frame,
+            prior,
+            float(cfg.grad_clip),
         )
+        return p
 
-    passes = range(start, int(cfg.iterations))
-    if progress:
-        from tqdm import tqdm
+    def prior_of(strength):
+        if strength is None or cfg.stiffness != "per_anchor":
+            return None
+        return FieldPrior.of(model, strength, cfg.field_shrink, level)
 
-        passes = tqdm(passes, desc=f"dynamics ({cfg.mode})", initial=start, total=int(cfg.iterations), leave=False)
-    n_t = max(schedule(start), n_t_floor)
-    for it in passes:
-        rng = np.random.default_rng([int(seed), it])
-        n_t = max(schedule(it), n_t_floor)
-        frame_losses, n_t_after = train_pass(inputs, opt, rng, n_t)
-        if n_t_after > n_t:
-            n_t = n_t_floor = n_t_after
-        pass_losses.append(float(np.mean(frame_losses)))
-        if on_pass is not None:
-            on_pass(it, pass_losses[-1], n_t)
-        if progress:
-            passes.set_postfix(loss=f"{pass_losses[-1]:.4f}", n_t=n_t)
-        if ckpt is not None and cfg.checkpoint_every > 0 and (it + 1) % cfg.checkpoint_every == 0:
-            ckpt.save(
-                it + 1,
-                {
-                    **adam_to_numpy(opt),
-                    "pass_losses": np.asarray(pass_losses),
-                    "n_t_floor": np.int64(n_t_floor),
-                    "eval_loss_initial": np.float64(eval_initial),
-                },
-            )
+    # ---- 2. the prior's strength, chosen on held-out time
+    if "field_prior" not in start_info:
+        start_info["field_prior"] = _choose_prior(
+            cfg,
+            n_fit,
+            iterations,
+            seed,
+            schedule,
+            evaluate_on,
+            inputs_for,
+            prior_of,
+            base,
+            physics_cfg,
+            stiffness,
+            targets,
+            progress,
+        )
+    chosen = start_info["field_prior"].get("chosen")
+    chosen = None if chosen is None else float(chosen)
 
-    final = _with_opt(base, opt, cfg).detach()
-    eval_final = rollout_loss(
-        model, final, binding, g, v0, ground, targets, cameras, dt, n_t, physics_cfg, render_cfg, lam
-    )
+    # ---- 3. the local stage on all fit frames
+    eval_all = evaluate_on(None)
+    if resumed is not None:
+        eval_start = float(resumed[1]["eval_loss_initial"])
+    else:
+        eval_start = eval_all(base)
+    if chosen is not None and math.isinf(chosen):  # no field: the global values are the asset
+        final, trained = base.detach(), _Train(base.detach(), [], n_t_final, eval_start, -1)
+    else:
+        inputs = inputs_for(targets, prior_of(chosen))
+        opt = make_adam(
+            {name: (value, _lr(cfg, name)) for name, value in _start_values(base, physics_cfg, stiffness).items()}
+        )
+        start, pass_losses, n_t_floor, best = 0, [], 0, None
+        if int(cfg.eval_every) > 0:
+            best = (eval_start, -1, {name: to_numpy(dr.detach(opt[name])) for name in opt.keys()})
+        if resumed is not None:
+            start, arrays = resumed
+            adam_from_numpy(opt, arrays)
+            pass_losses = [float(x) for x in arrays["pass_losses"]]
+            n_t_floor = int(arrays["n_t_floor"])
+            if "best/loss" in arrays:
+                names = [
+                    k[len("best/") :] for k in arrays if k.startswith("best/") and k not in ("best/loss", "best/pass")
+                ]
+                best = (float(arrays["best/loss"]), int(arrays["best/pass"]), {k: arrays[f"best/{k}"] for k in names})
+        trained = _train(
+            inputs,
+            opt,
+            start,
+            iterations,
+            seed,
+            schedule,
+            n_t_floor,
+            eval_all,
+            best,
+            ckpt,
+            {"eval_loss_initial": np.float64(eval_start), "start_info": np.array(json.dumps(start_info))},
+            on_pass,
+            progress,
+            pass_losses,
+        )
+        final = trained.params
+    eval_final = trained.eval_loss if math.isfinite(trained.eval_loss) else eval_all(final)
     return DynamicsResult(
         log10_k=to_numpy(final.log10_k).reshape(-1),
         kappa=scalar(final.kappa),
         friction=scalar(final.friction),
         restitution=scalar(final.restitution),
-        n_substeps=int(n_t),
-        pass_losses=pass_losses,
-        eval_loss_initial=eval_initial,
+        n_substeps=int(max(trained.n_t, n_t_final)),
+        pass_losses=trained.pass_losses,
+        eval_loss_initial=eval_start,
         eval_loss_final=eval_final,
-        k_grid=k_grid,
+        k_grid=start_info["k_grid"],
+        search=start_info["search"],
+        field_prior=start_info["field_prior"],
+        best_pass=trained.best_pass,
     )
+
+
+def _choose_prior(
+    cfg,
+    n_fit,
+    iterations,
+    seed,
+    schedule,
+    evaluate_on,
+    inputs_for,
+    prior_of,
+    base,
+    physics_cfg,
+    stiffness,
+    targets,
+    progress,
+) -> dict:
+    """recon.field_prior_strengths: with one value, that one; with several, each fitted on the
+    first n_fit - h fit frames from the start and scored by the open-loop rollout's all-view
+    loss on the last h (h = recon.holdout_frames); .inf scores the start itself (no field).
+    Returns {"strengths", "holdout_frames", "holdout_losses", "chosen"} (chosen None: no prior)."""
+    strengths = [float(v) for v in cfg.field_prior_strengths]
+    if not strengths or cfg.stiffness != "per_anchor":
+        return {"strengths": [f"{v:g}" for v in strengths], "chosen": None}
+    if len(strengths) == 1:
+        return {"strengths": [f"{v:g}" for v in strengths], "chosen": f"{strengths[0]:g}"}
+    h = int(cfg.holdout_frames) or max(1, n_fit // 4)
+    if n_fit - h < 2:
+        raise ValueError(
+            f"recon.holdout_frames={cfg.holdout_frames}: {h} held-out frames leave fewer than 2 of the "
+            f"{n_fit} fit frames to fit on; lower it or give one recon.field_prior_strengths value"
+        )
+    held_out = evaluate_on(list(range(n_fit - h, n_fit)))
+    early = evaluate_on(None)
+    losses = {}
+    for strength in strengths:
+        if math.isinf(strength):
+            losses[strength] = held_out(base)
+        else:
+            inputs = inputs_for(targets[: n_fit - h], prior_of(strength))
+            opt = make_adam(
+                {name: (value, _lr(cfg, name)) for name, value in _start_values(base, physics_cfg, stiffness).items()}
+            )
+            early_frames = list(range(1, n_fit - h))
+            best = None
+            if int(cfg.eval_every) > 0:
+                early = evaluate_on(early_frames)
+                best = (early(base), -1, {name: to_numpy(dr.detach(opt[name])) for name in opt.keys()})
+            trained = _train(inputs, opt, 0, iterations, seed, schedule, 0, early, best, progress=progress)
+            losses[strength] = held_out(trained.params)
+        log.info("dynamics: field prior %g -> held-out loss %.5f", strength, losses[strength])
+    chosen = min(strengths, key=lambda v: losses[v])
+    return {  # strengths as text ("inf" for no field): strict JSON
+        "strengths": [f"{v:g}" for v in strengths],
+        "holdout_frames": h,
+        "holdout_losses": {f"{k:g}": v for k, v in losses.items()},
+        "chosen": f"{chosen:g}",
+    }

@@ -6,6 +6,7 @@ contact, semi-implicit Euler, rollouts and their gradients.
 - `laws`: the named variants (spring law, symmetric stiffness, soft vector, contact).
 - `simulate`: spring forces, `substep`, `simulate_frame`, `rollout`, stability checks, and how
   the rollout is differentiated (module docstring).
+- `batched`: S parameter samples of one asset in one program (`batched_rollout`), forward only.
 - `reference`: the float64 NumPy twin, for tests and benchmarks only.
 """
 

@@ -53,6 +53,28 @@ class SimulateConfig:
 
 
 @dataclass
+class SearchConfig:
+    """The dynamic stage's global search (sgdr.identify.global_search): CMA-ES over the global
+    parameters, each candidate scored by its open-loop rollout of all fit frames, rendered on all
+    views at the prediction's n_t. The method sets what is searched, the preset how much."""
+
+    parameters: list[str] = field(default_factory=list)  # searched: log10_k (one level), kappa, friction,
+    #   restitution (those the physics lacks are skipped); empty = no search (start at physics.*_init,
+    #   or the best of recon.log10_k_grid)
+    log10_k_range: list[float] = field(default_factory=lambda: [1.5, 5.5])  # capped by the stability bound at n_t
+    kappa_range: list[float] = field(default_factory=lambda: [-4.0, 2.0])
+    friction_range: list[float] = field(default_factory=lambda: [0.0, 1.0])
+    restitution_range: list[float] = field(default_factory=lambda: [0.0, 0.9])
+    sigma0: float = 0.3  # CMA-ES's initial step, in units of each range
+    popsize: int = 8  # candidates per generation (one batched rollout)
+    generations: int = 10
+    image_scale: int = 1  # candidates are scored on images downscaled by this (k x k block means)
+    top_k: int = 5  # candidates whose futures the report compares (within equivalent_tolerance of the best)
+    equivalent_tolerance: float = 0.05  # relative loss within which candidates count as fitting equally well
+    spread_warning: float = 0.25  # warn when their predicted centres of mass part by more than this x the size
+
+
+@dataclass
 class ReconConfig:
     model: str = "spring_mass"  # the dynamic model (set by the method): spring_mass (Spring-Gaus) | pacnerf | ...
     #                             (sgdr.pipeline.run.MODELS; docs/baselines.md)
@@ -104,6 +126,18 @@ class ReconConfig:
     momentum_tolerance: float = 0.05  # scene units / s: the report warns when momentum-conserving springs
     #                                   (physics.springs=symmetric) push the predicted centre of mass by more
     simulate: SimulateConfig = field(default_factory=SimulateConfig)  # experiments/simulate.py
+    # ---- identification in two stages (issue 32; sgdr.identify.dynamics, global_search)
+    search: SearchConfig = field(default_factory=SearchConfig)  # the global stage
+    field_prior_strengths: list[float] = field(default_factory=list)  # λ candidates of the stiffness field's
+    #   prior (smoothness over the springs + shrinkage to the global level); the one whose fit on the first
+    #   fit frames predicts the held-out last ones best is refitted on all; .inf = no field (the global level
+    #   only). Empty: no prior, no choice (the official per-anchor field)
+    field_shrink: float = 0.1  # shrinkage weight relative to smoothness in the prior
+    holdout_frames: int = 0  # last fit frames held out to choose λ (0 = a quarter of the fit frames, >= 1)
+    grad_clip: float = 0.0  # each parameter's gradient clipped to this norm before Adam (0 = not clipped)
+    lr_decay: float = 1.0  # learning rates decay (cosine) to this fraction over the passes (1 = constant)
+    eval_every: int = 0  # the all-view rollout loss at the prediction's n_t every this many passes; the best
+    #                      parameters are kept (0 = the last pass's are kept)
 
 
 # Allowed values, checked before any work (sgdr.checks; names against their registries).
@@ -124,6 +158,20 @@ SIMULATE_CHECKS = {
     "v0": vector(3, empty_ok=True),
     "cameras": choice("sgdr.pipeline.asset:SIMULATE_CAMERAS"),
     "momentum_tolerance": positive(),
+}
+SEARCH_CHECKS = {
+    "parameters": list_of(choice("sgdr.identify.global_search:GLOBAL_PARAMETERS")),
+    "log10_k_range": vector(2),
+    "kappa_range": vector(2),
+    "friction_range": vector(2),
+    "restitution_range": vector(2),
+    "sigma0": positive(),
+    "popsize": at_least(2),
+    "generations": at_least(1),
+    "image_scale": at_least(1),
+    "top_k": at_least(1),
+    "equivalent_tolerance": non_negative(),
+    "spread_warning": positive(),
 }
 CHECKS = {
     "model": choice("sgdr.pipeline.run:MODELS"),
@@ -156,4 +204,12 @@ CHECKS = {
     "eval_workers": non_negative("0: every CPU"),
     "contact_margin": finite(),
     "momentum_tolerance": positive(),
+    "field_prior_strengths": list_of(
+        Check(lambda x: isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0, "must be > 0 (.inf: no field)")
+    ),
+    "field_shrink": non_negative(),
+    "holdout_frames": non_negative("0: a quarter of the fit frames"),
+    "grad_clip": non_negative("0: not clipped"),
+    "lr_decay": between(0.0, 1.0),
+    "eval_every": non_negative("0: never, the last pass is kept"),
 }

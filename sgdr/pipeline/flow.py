@@ -220,6 +220,7 @@ def dynamics_produce(ctx: RunContext, out: Path, ckpt) -> None:
             {"dynamic_pass_loss_live": loss, "n_substeps": n_t}, step=it
         ),
         progress=ctx.progress,
+        n_predict=int(seq.n_frames),
     )
     np.savez(out / "params.npz", log10_k=res.log10_k)
     (out / "dynamics.json").write_text(
@@ -233,6 +234,9 @@ def dynamics_produce(ctx: RunContext, out: Path, ckpt) -> None:
                 "eval_loss_initial": res.eval_loss_initial,
                 "eval_loss_final": res.eval_loss_final,
                 "log10_k_grid_losses": res.k_grid,
+                "search": res.search,
+                "field_prior": res.field_prior,
+                "best_pass": res.best_pass,
             }
         )
     )

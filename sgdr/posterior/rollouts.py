@@ -2,7 +2,7 @@
 
 `loop_rollout(model, base_params, samples, ground, n_frames, dt_frame, n_substeps, cfg)` returns
 (positions [S, T, N_A, 3] float64, stable [S] bool), the same contract as the batched
-`sgdr.posterior.batched.batched_rollout`, implemented by one `sgdr.physics.rollout` per sample
+`sgdr.physics.batched.batched_rollout`, implemented by one `sgdr.physics.rollout` per sample
 (correct on any backend, slower). `base_params` is the asset's plain parameter values
 (`Asset.values`: log10_k [N_A], kappa, friction, restitution, v0 [3], gravity [3]); `samples` a
 dict of per-sample arrays:
@@ -26,7 +26,7 @@ from sgdr.registry import Registry
 SAMPLE_KEYS = ("log10_k_shift", "kappa", "friction", "restitution", "zeta0", "v0")
 
 # How the sampler's S samples per call are simulated (posterior.rollout): "batched", S x N_A
-# anchors in one Dr.Jit program (`sgdr.posterior.batched`; ~2x faster per sample on 2 CPU cores,
+# anchors in one Dr.Jit program (`sgdr.physics.batched`; ~2x faster per sample on 2 CPU cores,
 # docs/benchmarks.md); "loop", one single rollout per sample (the reference; it retries an
 # unstable sample with doubled substeps as physics.retry_on_nan allows, the batched one does not).
 ROLLOUTS = Registry("posterior rollout", "posterior.rollout", ValueError)
@@ -98,7 +98,7 @@ def batched_samples_rollout(
     model, base_params: dict, samples: dict, ground, n_frames: int, dt_frame: float, n_substeps: int, cfg
 ):
     """(positions [S, T, N_A, 3], stable [S]): the same contract through
-    `sgdr.posterior.batched.batched_rollout`, at most `BATCH` samples per program.
+    `sgdr.physics.batched.batched_rollout`, at most `BATCH` samples per program.
 
     One batched program runs every sample at the asset's n_t and does not retry: a sample stiffer
     than n_t's stability bound comes back unstable. On the small torus the identified asset sits
@@ -132,7 +132,7 @@ def _batches(run: tuple, mapped: dict, idx: np.ndarray, n_substeps: int, pad: bo
     program. pad: a last, partial batch is padded (repeating its last sample) to the next power
     of two, so that retries of a varying few samples replay a handful of recorded widths
     instead of recording one per count (the sampler's own calls have one width)."""
-    from sgdr.posterior.batched import batched_rollout
+    from sgdr.physics.batched import batched_rollout
 
     model, params, ground, n_frames, dt_frame, cfg = run
     out = [], [], []

@@ -1,7 +1,8 @@
 """Batched forward rollouts: S parameter samples of one asset in one Dr.Jit program.
 
-A posterior sampler (emcee with `vectorize=True`) asks for the likelihood of S parameter
-vectors at once. Instead of S rollouts of N_A anchors, `batched_rollout` runs one rollout of
+The dynamic stage's global search scores a population of S candidates per call, and a posterior
+sampler (emcee with `vectorize=True`) asks for the likelihood of S parameter vectors at once:
+this is the one batched integrator both use. Instead of S rollouts of N_A anchors, `batched_rollout` runs one rollout of
 S x N_A anchors: `replicate_model` stacks S copies of the asset's `SpringModel` (copy s holds
 anchors s N_A .. (s+1) N_A - 1, its springs point into its own copy only, so the copies never
 interact), and every parameter that differs between samples becomes a per-anchor array of
@@ -26,10 +27,10 @@ the first frame of a given batch width is traced and recorded, later frames and 
 same width replay its kernels without tracing the substeps again in Python. At the tiny preset the
 tracing was most of a rollout's time (5-10x faster replayed, identical positions; see `_frozen_frame`
 for when it re-records); `freeze=False` runs the plain stepper (the reference,
-tests/test_posterior_batched.py).
+tests/test_physics_batched.py).
 
 Forward only (`dr.suspend_grad`). A batched sample equals the single `sgdr.physics.rollout`
-with the same parameters and n_substeps to float32 rounding (tests/test_posterior_batched.py).
+with the same parameters and n_substeps to float32 rounding (tests/test_physics_batched.py).
 Unlike `rollout`, a batch never retries with more substeps (one n_t for all samples); an
 unstable sample is flagged instead, and does not disturb the others (no springs join copies).
 The posterior's "batched" rollout (`sgdr.posterior.rollouts`) re-runs the flagged samples in

@@ -1,4 +1,4 @@
-"""Batched rollouts (sgdr/posterior/batched.py): a batch of S samples equals S single
+"""Batched rollouts (sgdr/physics/batched.py): a batch of S samples equals S single
 `sgdr.physics.rollout` calls with the same parameters, for every springs variant and contact
 model; unstable samples are flagged without disturbing the others; S = 1 works; the replicated
 topology keeps the copies apart; batched Gaussian centres equal `IDWBinding.apply` per frame."""
@@ -11,7 +11,7 @@ from physics_variants import CONTACT_MODELS, spring_variants
 from sgdr.arrays import to_numpy
 from sgdr.backend import ad
 from sgdr.physics import Ground, PhysicsConfig, PhysicsInputError, PhysParams, SimState, build_spring_model, rollout
-from sgdr.posterior.batched import batched_centres, batched_rollout, replicate_model
+from sgdr.physics.batched import batched_centres, batched_rollout, replicate_model
 from sgdr.skin import IDWBinding
 
 N_A, N_K, N_FRAMES, N_SUB, DT = 48, 8, 5, 40, 1 / 24
@@ -109,7 +109,7 @@ def test_frozen_frames_replay_what_the_traced_substeps_compute():
     """The frozen per-frame stepper (the default) against tracing every substep: the first call
     of a width records, the next ones replay the kernels with other parameters, another model of
     the same size and another physics setting (a new recording), all equal to the traced rollouts."""
-    from sgdr.posterior.batched import _frozen_frame
+    from sgdr.physics.batched import _frozen_frame
 
     before, frames = _frozen_frame.n_recordings, 0
     variants = (("directed", "project", {}), ("directed", "project", {}), ("symmetric", "coulomb", {"air_drag": 0.5}))

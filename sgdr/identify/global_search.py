@@ -1,0 +1,355 @@
+"""The dynamic stage's global search: CMA-ES over the few global physical parameters.
+
+The rendered rollout loss is rugged in the global stiffness (a bounce or a slide shifts in time
+when k changes by a few percent: docs/reconstruction-results.md), so its local gradient does not
+point to the best basin. Before any gradient step the stage therefore searches, derivative-free,
+the box of the global parameters `recon.search.parameters` (a subset of `GLOBAL_PARAMETERS`):
+
+    θ_g = (log10 k, κ, μ, e)    log10 k: one level for every anchor (the field's mean)
+
+with CMA-ES (the `cma` package) in unit coordinates u = (θ_g - lo) / (hi - lo) ∈ [0, 1]^d.
+Each candidate is scored by what the asset is asked to do, predict from frame 0 alone:
+
+    L(θ_g) = mean over fit frames f = 1 .. n_fit-1 and all views v of
+             (1-λ) L1(I_f,v, I*_f,v) + λ D-SSIM(I_f,v, I*_f,v),   λ = recon.lambda_dssim
+
+of the open-loop rollout from rest at the n_t the prediction uses (the end of the substep
+schedule), rendered on every view, optionally on images downscaled by `recon.search.image_scale`
+(k x k block means of the targets, intrinsics / k). One generation, a population of S
+candidates, is one batched rollout of S x N_A anchors (`sgdr.physics.batched`) and S x
+(n_fit - 1) x n_views forward renders. A candidate whose rollout is unstable at that n_t scores
+`UNSTABLE_LOSS`, above any image loss; the stiffness range is capped at the level the stability
+bound allows at that n_t, so few candidates are wasted there.
+
+What the search records (`GlobalSearchResult`) is also what the report shows of it: every
+candidate's values and loss, the best values, and the spread of the futures that candidates
+fitting about equally well predict (`Landscape`): when the fit frames do not pin the parameters
+down, several basins fit alike and predict different things, and the report says so.
+
+Deterministic: CMA-ES draws from its own seed (`seed`); the losses are forward renders.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import drjit as dr
+import numpy as np
+
+from sgdr.arrays import to_numpy
+from sgdr.backend import ad
+
+log = logging.getLogger(__name__)
+
+GLOBAL_PARAMETERS = ("log10_k", "kappa", "friction", "restitution")
+"""The global parameters the search may vary (recon.search.parameters)."""
+
+UNSTABLE_LOSS = 10.0
+"""The score of a candidate whose rollout is unstable: above any image loss (L1 and D-SSIM <= 1)."""
+
+
+class SearchConfigError(ValueError):
+    """A recon.search setting that cannot be used; the message names the key."""
+
+
+@dataclass(frozen=True)
+class SearchSpace:
+    """The box the search explores: parameter names and their ranges [lo, hi]."""
+
+    names: tuple[str, ...]
+    lo: np.ndarray  # [d]
+    hi: np.ndarray  # [d]
+
+    def values(self, u: np.ndarray) -> dict[str, np.ndarray]:
+        """Unit coordinates [S, d] -> {name: [S] values} (clipped to the box)."""
+        u = np.clip(np.atleast_2d(np.asarray(u, float)), 0.0, 1.0)
+        x = self.lo + u * (self.hi - self.lo)
+        return {name: x[:, i] for i, name in enumerate(self.names)}
+
+    def unit(self, values: dict) -> np.ndarray:
+        """{name: value} -> unit coordinates [d], clipped to the box."""
+        x = np.array([float(values[n]) for n in self.names])
+        return np.clip((x - self.lo) / np.maximum(self.hi - self.lo, 1e-30), 0.0, 1.0)
+
+
+def stable_level(model, kappa_values, dt_frame: float, n_t: int, physics_cfg) -> float:
+    """The highest uniform log10 k whose rollout at n_t substeps per frame keeps the stability
+    bound dt <= physics.cfl_factor sqrt(m_i / k_eff,i) for every κ in `kappa_values`."""
+    from types import SimpleNamespace
+
+    from sgdr.physics.simulate import effective_stiffness, model_host
+
+    mass = model_host(model)["particle_mass"]
+    t = ad()
+    worst = 0.0
+    for kappa in kappa_values:
+        p = SimpleNamespace(log10_k=np.zeros(model.n_anchors), kappa=t.Float(float(kappa)))
+        k_eff = effective_stiffness(model, p, physics_cfg)  # at log10 k = 0: k_eff scales with 10^level
+        worst = max(worst, float(np.max(k_eff / mass)))
+    dt = float(dt_frame) / int(n_t)
+    # dt <= c sqrt(m / (10^L k0)) <=> L <= log10(c^2 / (dt^2 max(k0 / m)))
+    return math.log10(physics_cfg.cfl_factor**2 / (dt * dt * worst))
+
+
+def search_space(search_cfg, physics_cfg, model, dt_frame: float, n_t: int) -> SearchSpace:
+    """The box of `recon.search.parameters` with the `recon.search.<name>_range` ranges; κ only
+    where the soft vector acts, e only where the contact has one (physics.contact); log10 k
+    capped at the stability bound at n_t (`stable_level`). Raises SearchConfigError naming the key."""
+    from sgdr.physics.laws import CONTACT_PARAMETERS
+
+    unknown = [n for n in search_cfg.parameters if n not in GLOBAL_PARAMETERS]
+    if unknown:
+        raise SearchConfigError(f"recon.search.parameters: unknown {unknown}; known: {list(GLOBAL_PARAMETERS)}")
+    contact = CONTACT_PARAMETERS.get_named(physics_cfg.contact)
+    names, lo, hi = [], [], []
+    for name in search_cfg.parameters:
+        if name == "kappa" and not physics_cfg.soft_vector:
+            continue  # η = 1: κ acts on nothing
+        if name in ("friction", "restitution") and name not in contact:
+            continue
+        a, b = (float(v) for v in getattr(search_cfg, f"{name}_range"))
+        if not (math.isfinite(a) and math.isfinite(b) and a < b):
+            raise SearchConfigError(f"recon.search.{name}_range={[a, b]} must be two finite numbers, low < high")
+        names.append(name)
+        lo.append(a)
+        hi.append(b)
+    if "log10_k" in names:
+        i = names.index("log10_k")
+        kappas = list(search_cfg.kappa_range) if "kappa" in names else [physics_cfg.kappa_init]
+        cap = stable_level(model, kappas, dt_frame, n_t, physics_cfg)
+        if cap <= lo[i]:
+            raise SearchConfigError(
+                f"recon.search.log10_k_range={[lo[i], hi[i]]}: every level is unstable at n_t={n_t} substeps per "
+                f"frame (the stability bound allows log10 k <= {cap:.3g}); lower the range or raise physics.n_substeps"
+            )
+        hi[i] = min(hi[i], cap)
+    return SearchSpace(tuple(names), np.asarray(lo, float), np.asarray(hi, float))
+
+
+@dataclass
+class Landscape:
+    """What the report shows of the search: how sure the identification is.
+
+    equivalent: indices (into GlobalSearchResult.losses) of the candidates whose loss is within
+      recon.search.equivalent_tolerance (relative) of the best, best first, at most top_k;
+    future_spread: the largest distance between their predicted centres of mass over the frames
+      after the fit window, as a fraction of the object's size (0 with one candidate);
+    ambiguous: future_spread > recon.search.spread_warning."""
+
+    equivalent: list[int]
+    future_spread: float
+    ambiguous: bool
+    centres: np.ndarray  # [len(equivalent), T, 3] their predicted centres of mass, all frames
+
+
+@dataclass
+class GlobalSearchResult:
+    """Every scored candidate and the best one (module docstring)."""
+
+    names: tuple[str, ...]
+    candidates: np.ndarray  # [n_eval, d] values in evaluation order
+    losses: np.ndarray  # [n_eval] rollout losses (UNSTABLE_LOSS where unstable)
+    generation: np.ndarray  # [n_eval] int, the CMA-ES generation of each candidate
+    best: dict[str, float]  # the best candidate's values
+    best_loss: float
+    n_substeps: int  # the n_t every candidate was scored at
+    image_scale: int
+    landscape: Landscape | None = None
+    lo: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    hi: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def to_json(self) -> dict:
+        """Plain values for dynamics.json (the report's landscape section reads them)."""
+        order = np.argsort(self.losses, kind="stable")
+        out = {
+            "names": list(self.names),
+            "lo": self.lo.tolist(),
+            "hi": self.hi.tolist(),
+            "best": self.best,
+            "best_loss": self.best_loss,
+            "n_evaluations": int(self.losses.size),
+            "n_generations": int(self.generation.max() + 1) if self.generation.size else 0,
+            "n_substeps": self.n_substeps,
+            "image_scale": self.image_scale,
+            "candidates": self.candidates[order].tolist(),
+            "losses": self.losses[order].tolist(),
+            "generation": self.generation[order].tolist(),
+        }
+        if self.landscape is not None:
+            out["landscape"] = {
+                "equivalent": [int(np.flatnonzero(order == i)[0]) for i in self.landscape.equivalent],
+                "future_spread": self.landscape.future_spread,
+                "ambiguous": bool(self.landscape.ambiguous),
+            }
+        return out
+
+
+class PopulationScorer:
+    """L(θ_g) of a population (module docstring): one batched rollout, forward renders.
+
+    model / binding / gaussians: the asset; base: PhysParams holding every field a candidate
+    does not set (its log10 k field uniform, or any field: a candidate's level moves the field's
+    mean); targets [n_fit][n_views] TensorXf [H, W, 3]; cameras: the sequence's."""
+
+    def __init__(
+        self,
+        model,
+        binding,
+        gaussians,
+        base,
+        ground,
+        targets,
+        cameras,
+        dt_frame: float,
+        n_t: int,
+        physics_cfg,
+        render_cfg,
+        lam: float,
+        image_scale: int = 1,
+    ):
+        from sgdr.cameras import block_mean, downscaled
+
+        k = int(image_scale)
+        if k < 1:
+            raise SearchConfigError(f"recon.search.image_scale={image_scale} must be a positive integer")
+        t = ad()
+        self.model, self.binding, self.base, self.ground = model, binding, base, ground
+        self.gaussians = gaussians.detach() if hasattr(gaussians, "detach") else gaussians
+        self.cameras = [downscaled(c, k) for c in cameras]
+        self.targets = [
+            [t.TensorXf(np.ascontiguousarray(block_mean(to_numpy(img, np.float32), k))) for img in frame]
+            for frame in targets
+        ]
+        self.dt, self.n_t, self.physics_cfg, self.render_cfg, self.lam = (
+            dt_frame,
+            int(n_t),
+            physics_cfg,
+            render_cfg,
+            lam,
+        )
+        self.base_level = float(np.mean(to_numpy(base.log10_k)))
+        self.image_scale = k
+
+    def samples(self, values: dict[str, np.ndarray]) -> dict:
+        """Candidate values -> `batched_rollout` samples (a level is a shift of the base field)."""
+        out = {}
+        for name, v in values.items():
+            if name == "log10_k":
+                out["dlog10_k"] = np.asarray(v, float) - self.base_level
+            else:
+                out[name] = np.asarray(v, float)
+        return out
+
+    def rollout(self, values: dict[str, np.ndarray], n_frames: int):
+        from sgdr.physics.batched import batched_rollout
+
+        return batched_rollout(
+            self.model, self.base, self.samples(values), self.ground, n_frames, self.dt, self.n_t, self.physics_cfg
+        )
+
+    def __call__(self, values: dict[str, np.ndarray]) -> np.ndarray:
+        """[S] losses of the candidates {name: [S] values}."""
+        from sgdr.identify.common import posed, render
+        from sgdr.loss import image_loss
+
+        t = ad()
+        run = self.rollout(values, len(self.targets))
+        losses = np.full(run.positions.shape[0], UNSTABLE_LOSS)
+        with dr.suspend_grad():
+            for s in np.flatnonzero(run.stable):
+                total = t.Float(0.0)
+                for f in range(1, len(self.targets)):
+                    x = run.positions[s, f].astype(np.float32)
+                    g = posed(self.gaussians, self.binding.apply(t.Array3f(*x.T)))
+                    for v, cam in enumerate(self.cameras):
+                        total += image_loss(render(g, cam, self.render_cfg).rgb, self.targets[f][v], self.lam)
+                    dr.eval(total)
+                value = float(to_numpy(total)[0]) / ((len(self.targets) - 1) * len(self.cameras))
+                losses[s] = value if math.isfinite(value) else UNSTABLE_LOSS
+        return losses
+
+
+def landscape(scorer: PopulationScorer, result: GlobalSearchResult, search_cfg, n_frames: int, n_fit: int) -> Landscape:
+    """The futures of the candidates that fit about as well as the best (`Landscape`)."""
+    order = np.argsort(result.losses, kind="stable")
+    ok = result.losses[order] <= result.best_loss * (1.0 + float(search_cfg.equivalent_tolerance))
+    chosen = [int(i) for i in order[ok][: max(1, int(search_cfg.top_k))]]
+    values = {n: result.candidates[chosen, j] for j, n in enumerate(result.names)}
+    run = scorer.rollout(values, int(n_frames))
+    centres = np.nanmean(run.positions, axis=2)  # [K, T, 3]
+    size = float(np.ptp(to_numpy(scorer.model.x_rest).T, axis=0).max())
+    future = centres[:, int(n_fit) :]
+    spread = 0.0
+    if len(chosen) > 1 and future.shape[1] > 0:
+        d = np.linalg.norm(future[:, None] - future[None, :], axis=-1)  # [K, K, T_future]
+        spread = float(np.nanmax(d)) / max(size, 1e-12)
+    return Landscape(chosen, spread, spread > float(search_cfg.spread_warning), centres)
+
+
+def global_search(
+    scorer: PopulationScorer,
+    space: SearchSpace,
+    start: dict[str, float],
+    search_cfg,
+    seed: int,
+    progress: bool = False,
+) -> GlobalSearchResult:
+    """CMA-ES (`cma`) over `space` from `start` (values; clipped into the box), a population of
+    recon.search.popsize candidates per generation, recon.search.generations generations; every
+    candidate scored by `scorer`. Returns every candidate and the best one."""
+    import cma
+
+    d = len(space.names)
+    if d == 0:
+        raise SearchConfigError("recon.search.parameters: none of them applies to this physics configuration")
+    popsize = int(search_cfg.popsize)
+    if popsize < 2:
+        raise SearchConfigError(f"recon.search.popsize={popsize} must be at least 2")
+    u0 = space.unit(start)
+    opts = {
+        "bounds": [0.0, 1.0],
+        "popsize": popsize,
+        "seed": int(seed) + 1,  # cma reads 0 as "seed from the clock"
+        "maxiter": int(search_cfg.generations),
+        "verbose": -9,
+        "tolfun": 0.0,
+        "tolx": 1e-6,
+    }
+    es = cma.CMAEvolutionStrategy(u0.tolist(), float(search_cfg.sigma0), opts)
+    cand, losses, gen = [], [], []
+    generations = range(int(search_cfg.generations))
+    if progress:
+        from tqdm import tqdm
+
+        generations = tqdm(generations, desc="dynamics: global search", leave=False)
+    for g in generations:
+        if es.stop():
+            break
+        u = np.asarray(es.ask(), float)
+        values = space.values(u)
+        f = scorer(values)
+        es.tell(list(u), f.tolist())
+        cand.append(np.stack([values[n] for n in space.names], axis=1))
+        losses.append(f)
+        gen.append(np.full(f.size, g))
+        best = float(np.min(np.concatenate(losses)))
+        log.info("dynamics: global search generation %d: best loss %.5f (this generation %.5f)", g, best, f.min())
+        if progress:
+            generations.set_postfix(best=f"{best:.4f}")
+    candidates = np.concatenate(cand)
+    all_losses = np.concatenate(losses)
+    i = int(np.argmin(all_losses))
+    return GlobalSearchResult(
+        names=space.names,
+        candidates=candidates,
+        losses=all_losses,
+        generation=np.concatenate(gen),
+        best={n: float(candidates[i, j]) for j, n in enumerate(space.names)},
+        best_loss=float(all_losses[i]),
+        n_substeps=scorer.n_t,
+        image_scale=scorer.image_scale,
+        lo=space.lo,
+        hi=space.hi,
+    )

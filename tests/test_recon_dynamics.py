@@ -300,3 +300,94 @@ def test_a_non_finite_gradient_skips_the_adam_step_and_leaves_the_parameters_fin
     assert float(opt["kappa"][0]) == pytest.approx(0.4, abs=1e-4)  # undone
     dr.backward(opt["kappa"] * opt["kappa"])
     assert finite_step(opt, cfg) is True and np.isfinite(float(opt["kappa"][0]))
+
+
+# ---------------------------------------------------------------------------- the global stage and the field prior
+def _search_cfg(**kw):
+    from sgdr.pipeline.config import SearchConfig
+
+    search = SearchConfig(**{"parameters": ["log10_k", "friction"], "popsize": 6, "generations": 5, **kw})
+    return ReconConfig(mode="full", iterations=0, substep_growth=[1.0], search=search)
+
+
+def test_the_global_search_finds_the_twins_stiffness_and_friction_and_repeats(scene):
+    """CMA-ES from a wrong start (log10 k 2.2, μ 0.9; truth 3.0, 0.6), every candidate scored by
+    its open-loop all-view rollout: the best lands on the truth; the same seed repeats it."""
+    s = scene
+    pcfg = replace(s["pcfg"], log10_k_init=2.2, friction_init=0.9)
+    targets = [frame_targets(s["seq"], f) for f in range(7)]
+    args = (s["model"], s["binding"], s["bound"], s["v0"], np.array([0, 0, -9.8]), s["ground"], targets, s["cams"], FPS)
+    res = fit_dynamics(*args, pcfg, _search_cfg(), s["rcfg"], seed=0, n_predict=7)
+    best = res.search["best"]
+    assert abs(best["log10_k"] - TRUE["log10_k"]) < 0.1, best
+    assert abs(best["friction"] - TRUE["friction"]) < 0.15, best
+    np.testing.assert_allclose(res.log10_k, best["log10_k"], rtol=1e-6)  # no passes: the search's level is the field
+    assert res.search["n_evaluations"] == 30 and res.search["losses"] == sorted(res.search["losses"])
+    assert res.search["landscape"]["equivalent"][0] == 0 and res.search["landscape"]["future_spread"] >= 0.0
+    again = fit_dynamics(*args, pcfg, _search_cfg(), s["rcfg"], seed=0, n_predict=7)
+    assert again.search["best"] == best
+
+
+def test_the_search_space_skips_what_the_physics_lacks_and_caps_the_stiffness_at_the_stability_bound(scene):
+    from sgdr.identify.global_search import SearchConfigError, search_space, stable_level
+    from sgdr.physics import PhysParams, stable_substeps
+    from sgdr.pipeline.config import SearchConfig
+
+    s = scene
+    cfg = SearchConfig(parameters=["log10_k", "kappa", "friction", "restitution"], log10_k_range=[1.0, 9.0])
+    space = search_space(cfg, s["pcfg"], s["model"], 1 / FPS, 40)  # contact=project: no restitution
+    assert space.names == ("log10_k", "kappa", "friction")
+    cap = space.hi[0]
+    assert cap < 9.0 and cap == pytest.approx(stable_level(s["model"], cfg.kappa_range, 1 / FPS, 40, s["pcfg"]))
+    for kappa in cfg.kappa_range:  # at the cap the bound holds for every κ of the range, just
+        p = PhysParams.init(s["model"], replace(s["pcfg"], log10_k_init=cap - 1e-3, kappa_init=kappa))
+        assert stable_substeps(s["model"], p, 1 / FPS, s["pcfg"]) <= 40
+    above = [replace(s["pcfg"], log10_k_init=cap + 0.05, kappa_init=kappa) for kappa in cfg.kappa_range]
+    assert max(stable_substeps(s["model"], PhysParams.init(s["model"], c), 1 / FPS, s["pcfg"]) for c in above) > 40
+    with pytest.raises(SearchConfigError, match="recon.search.parameters"):
+        search_space(SearchConfig(parameters=["stiffness"]), s["pcfg"], s["model"], 1 / FPS, 40)
+
+
+def test_the_field_prior_is_zero_on_a_uniform_field_and_its_gradient_matches_central_differences(scene):
+    from sgdr.identify.dynamics import FieldPrior
+
+    prior = FieldPrior.of(scene["model"], 2.0, 0.1, 3.0)
+    assert prior.value(np.full(48, 3.0)) == 0.0 and not prior.gradient(np.full(48, 3.0)).any()
+    k = 3.0 + np.random.default_rng(0).normal(0, 0.2, 48)
+    g = prior.gradient(k)
+    h = 1e-6
+    for i in (0, 7, 31):
+        e = np.zeros(48)
+        e[i] = h
+        assert g[i] == pytest.approx((prior.value(k + e) - prior.value(k - e)) / (2 * h), rel=1e-5)
+
+
+def test_the_prior_strength_is_chosen_on_held_out_frames_and_the_best_parameters_are_kept(scene):
+    s = scene
+    pcfg = replace(s["pcfg"], log10_k_init=2.6, friction_init=0.6)
+    targets = [frame_targets(s["seq"], f) for f in range(7)]
+    cfg = replace(
+        _search_cfg(),
+        iterations=3,
+        cameras_per_frame=2,
+        lr_log10_k=0.05,
+        lr_friction=0.02,
+        field_prior_strengths=[float("inf"), 1.0],
+        holdout_frames=2,
+        eval_every=1,
+        grad_clip=1e-3,
+        lr_decay=0.1,
+    )
+    cfg = replace(cfg, search=replace(cfg.search, generations=2))
+    res = fit_dynamics(
+        s["model"], s["binding"], s["bound"], s["v0"], np.array([0, 0, -9.8]), s["ground"], targets, s["cams"], FPS,
+        pcfg, cfg, s["rcfg"], seed=0,
+    )  # fmt: skip
+    fp = res.field_prior
+    assert fp["holdout_frames"] == 2 and set(fp["holdout_losses"]) == {"inf", "1"}
+    assert fp["chosen"] == min(fp["holdout_losses"], key=fp["holdout_losses"].get)
+    assert res.eval_loss_final <= res.eval_loss_initial  # the kept parameters are never worse than the start
+    if fp["chosen"] == "inf":
+        assert np.ptp(res.log10_k) == 0.0 and res.pass_losses == []
+    else:
+        assert len(res.pass_losses) == 3

@@ -205,7 +205,9 @@ CHECKS = {
     "contact_margin": finite(),
     "momentum_tolerance": positive(),
     "field_prior_strengths": list_of(
-        Check(lambda x: isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0, "must be > 0 (.inf: no field)")
+        Check(
+            lambda x: isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0, "must be > 0 (.inf: no field)"
+        )
     ),
     "field_shrink": non_negative(),
     "holdout_frames": non_negative("0: a quarter of the fit frames"),

@@ -270,6 +270,31 @@ def plot_stiffness(path, anchors: np.ndarray, log10_k: np.ndarray, k_range: tupl
     return _save_figure(fig, path)
 
 
+def plot_search(path, search: dict) -> Path:
+    """The global search's landscape: every candidate's rollout loss against each searched
+    parameter (one panel each), coloured by CMA-ES generation; the candidates that fit about as
+    well as the best (`landscape.equivalent`) ringed. `search`: dynamics.json's "search"."""
+    plt = _pyplot()
+    names = list(search["names"])
+    cand = np.asarray(search["candidates"], float).reshape(-1, len(names))
+    loss = _values(search["losses"])
+    gen = np.asarray(search["generation"], float)
+    if cand.shape[0] == 0:
+        raise ValueError(f"plot_search {path}: no candidates")
+    equivalent = (search.get("landscape") or {}).get("equivalent") or []
+    fig, axes = plt.subplots(1, len(names), figsize=(3.8 * len(names), 3.4), squeeze=False)
+    for i, (ax, name) in enumerate(zip(axes[0], names)):
+        sc = ax.scatter(cand[:, i], loss, c=gen, cmap="viridis", s=14)
+        if equivalent:
+            ax.scatter(cand[equivalent, i], loss[equivalent], s=80, facecolors="none", edgecolors="tab:red")
+        ax.set_xlabel(name)
+        ax.set_ylabel("rollout loss (all fit frames, all views)")
+        ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+    fig.colorbar(sc, ax=axes[0][-1], label="generation")
+    return _save_figure(fig, path)
+
+
 def plot_metric_curves(path, per_frame: Mapping, n_fit: int) -> Path:
     """Per-frame scores, model against the physics-free baselines, fit | future marked.
 

@@ -183,6 +183,57 @@ def scores_table(scores: dict) -> str:
     return out
 
 
+def identification_body(out: Path, dyn: dict) -> str:
+    """How sure the identification is: the global search's landscape (plot, the best
+    candidates, the spread of their futures) and the field prior's choice on held-out time."""
+    from sgdr.pipeline import report
+
+    body = ""
+    search = dyn.get("search") or {}
+    if search:
+        names = list(search["names"])
+        png = report.plot_search(out / "search.png", search)
+        body += paragraph(
+            f"Global search (CMA-ES): {search['n_evaluations']} candidates in {search['n_generations']} generations, "
+            f"each scored by its open-loop rollout of all fit frames on all views at n_t = {search['n_substeps']} "
+            f"(images downscaled {search['image_scale']}x). Best loss {_fmt(search['best_loss'])} at "
+            + ", ".join(f"{n} = {_fmt(v)}" for n, v in search["best"].items())
+            + "."
+        )
+        body += image(
+            png, "search landscape", "Every candidate's loss; red rings: those that fit about as well as the best."
+        )
+        land = search.get("landscape") or {}
+        eq = land.get("equivalent") or []
+        rows = [
+            [str(r + 1), _fmt(search["losses"][i]), *(_fmt(search["candidates"][i][j]) for j in range(len(names)))]
+            for r, i in enumerate(eq)
+        ]
+        if rows:
+            body += table(("rank", "loss", *names), rows)
+            body += paragraph(
+                f"{len(eq)} candidate(s) fit within the equivalence tolerance of the best; their predicted centres of mass "
+                f"part by up to {land.get('future_spread', 0.0):.3g} x the object's size after the fit window"
+                + (
+                    ": the fit frames do not pin the physics down, and the future is uncertain."
+                    if land.get("ambiguous")
+                    else "."
+                )
+            )
+    prior = dyn.get("field_prior") or {}
+    if prior.get("holdout_losses"):
+        rows = [
+            [k if k != "inf" else "inf (no field: the global level)", _fmt(v)]
+            for k, v in prior["holdout_losses"].items()
+        ]
+        body += paragraph(
+            f"The stiffness field's prior strength, chosen on held-out time: each fitted on the first fit frames and "
+            f"scored on the last {prior['holdout_frames']} (open loop). Chosen: {prior['chosen']}."
+        )
+        body += table(("prior strength λ", "held-out loss"), rows)
+    return body
+
+
 def run_sections(
     out: Path,
     scores: dict,
@@ -235,6 +286,8 @@ def run_sections(
         f"dynamic passes, {_fmt(dyn.get('eval_loss_final'))} after."
     )
     sections.append(Section("Losses", body))
+    if dyn.get("search") or (dyn.get("field_prior") or {}).get("holdout_losses"):
+        sections.append(Section("Identification", identification_body(out, dyn)))
     png = report.plot_stiffness(
         out / "stiffness.png", anchors, dyn["log10_k"], (recon_cfg.log10_k_min, recon_cfg.log10_k_max)
     )

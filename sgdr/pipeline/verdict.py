@@ -25,7 +25,11 @@ Warnings:
   (`eval_loss_final`) not below the one before (`eval_loss_initial`), or the last dynamic
   pass's training loss above the first's;
 - the future prediction worse than any baseline variant (still, constant velocity, ballistic);
-- no dynamic pass ran (the physical parameters are the initial guesses);
+- no dynamic pass ran and no global search either (the physical parameters are the initial guesses);
+- the global search's landscape (recon.search): candidates that fit about equally well
+  (`recon.search.equivalent_tolerance`) predicting centres of mass that part by more than
+  `recon.search.spread_warning` x the object's size after the fit window; a best value at the
+  end of its search range;
 - springs that should conserve momentum (physics.springs=symmetric) pushing the predicted
   centre of mass by more than `recon.momentum_tolerance` (scene units / s; the predict stage's
   momentum audit, `sgdr.pipeline.momentum`): a bug. The official directed springs never conserve
@@ -169,16 +173,45 @@ def _bound_warnings(dyn: dict, recon_cfg, physics_cfg) -> list[str]:
     return out
 
 
+def _search_warnings(dyn: dict) -> list[str]:
+    """The global search's doubts: equally good candidates predicting different futures, and a
+    best value at the edge of its search range."""
+    search = dyn.get("search") or {}
+    out = []
+    land = search.get("landscape") or {}
+    if land.get("ambiguous"):
+        out.append(
+            f"{len(land.get('equivalent') or [])} candidates of the global search fit the fit frames about equally well "
+            f"but predict futures whose centres of mass part by {float(land['future_spread']):.2g} x the object's size: "
+            "the fit frames do not determine the physics; trust the prediction less (see Identification)."
+        )
+    for name, lo, hi in zip(search.get("names") or [], search.get("lo") or [], search.get("hi") or []):
+        v = float(search["best"][name])
+        tol = AT_BOUND * max(1.0, abs(float(hi) - float(lo)))
+        if v <= float(lo) + tol or v >= float(hi) - tol:
+            side, key = (
+                ("lower", f"recon.search.{name}_range")
+                if v <= float(lo) + tol
+                else ("upper", f"recon.search.{name}_range")
+            )
+            if name == "log10_k" and side == "upper":
+                key += " or the stability bound at n_t (raise physics.n_substeps)"
+            out.append(f"The global search's best {name} = {v:.4g} is at the {side} end of its range ({key}).")
+    return out
+
+
 def _loss_warnings(dyn: dict) -> list[str]:
     out = []
     passes = list(dyn.get("pass_losses") or [])
-    if not passes:
+    searched = bool(dyn.get("search"))  # the global stage's best is the start: no pass may be needed
+    if not passes and not searched:
         out.append("No dynamic pass ran (recon.iterations = 0): the physical parameters are the initial guesses.")
     a, b = _finite(dyn.get("eval_loss_initial")), _finite(dyn.get("eval_loss_final"))
+    kept_start = searched and int(dyn.get("best_pass", 0)) < 0  # no pass beat the start: the start was kept
     if a is None or b is None:
         if passes:
             out.append("The rollout loss before or after training is not a finite number.")
-    elif b >= a:
+    elif b > a or (b == a and not kept_start):
         out.append(
             f"The loss did not decrease: the all-view rollout loss is {b:.4g} after training against {a:.4g} before."
         )
@@ -246,7 +279,7 @@ def judge(scores: dict, dyn: dict, recon_cfg, physics_cfg, momentum: dict | None
     fit, fit_text = fit_verdict(scores)
     future, future_head, future_text = future_verdict(scores)
     warnings = _bound_warnings(dyn, recon_cfg, physics_cfg) + _loss_warnings(dyn) + _baseline_warnings(scores)
-    warnings += _momentum_warnings(momentum, recon_cfg)
+    warnings += _momentum_warnings(momentum, recon_cfg) + _search_warnings(dyn)
     return Verdict(fit, future, f"Fit {fit}, {future_head}.", [fit_text, *future_text], warnings)
 
 

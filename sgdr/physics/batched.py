@@ -247,7 +247,7 @@ def batched_centres(binding, positions: np.ndarray) -> np.ndarray:
     `sgdr.skin.IDWBinding` (its `apply`, Eq. 14, so both binding forms), all S x T frames of
     anchors bound in one call: the frames are stacked as S T copies of the binding (anchor
     indices offset per copy). NaN positions (unstable samples) give NaN centres."""
-    from sgdr.skin.binding import IDWBinding
+    from sgdr.skin.binding import IDWBinding, anchor_transpose
 
     t = ad()
     positions = np.asarray(positions, dtype=np.float64)
@@ -257,6 +257,7 @@ def batched_centres(binding, positions: np.ndarray) -> np.ndarray:
     S, T = positions.shape[:2]
     c, m = S * T, binding.count
     idx = to_numpy(binding.anchor_index, np.int64)[None, :] + np.arange(c, dtype=np.int64)[:, None] * n
+    pair_offset, pair = anchor_transpose(idx, c * n)
     stacked = IDWBinding(
         anchor_index=t.UInt32(idx.reshape(-1).astype(np.uint32)),
         weight=t.Float(np.tile(to_numpy(binding.weight, np.float32), c)),
@@ -264,6 +265,8 @@ def batched_centres(binding, positions: np.ndarray) -> np.ndarray:
         anchors_rest=t.Array3f(*np.tile(to_numpy(binding.anchors_rest, np.float32), (1, c))),
         n_b=binding.n_b,
         form=binding.form,
+        pair_offset=t.UInt32(pair_offset),
+        pair=t.UInt32(pair),
     )
     x = positions.reshape(c * n, 3).astype(np.float32)
     with dr.suspend_grad():

@@ -27,16 +27,34 @@ Three phases, as in 3DGS (Kerbl et al. 2023):
    to front, recovering T_i = T_{i+1} / (1 - α_i) and the normalised colour behind i,
    S_i = c_{i+1} α_{i+1} + (1 - α_{i+1}) S_{i+1}, so that
        ∂C/∂α_i = T_i (c_i - S_i) - T_N / (1 - α_i) · background,   ∂A/∂α_i = T_N / (1 - α_i)
-   with A = 1 - T_N the accumulated opacity. Per-Gaussian adjoints are scatter-added
-   (Dr.Jit's `Expand` reduction on the CPU: no atomics). The custom op hands its input
-   adjoints (image centre, conic, colour, opacity) back to Dr.Jit's AD graph, which carries them
-   through the projection into every field of `Gaussians`, and on into whatever computed the
-   means upstream (IDW skinning of simulated anchors).
+   with A = 1 - T_N the accumulated opacity. Per-Gaussian adjoints are accumulated in fixed
+   point (below). The custom op hands its input adjoints (image centre, conic, colour,
+   opacity) back to Dr.Jit's AD graph, which carries them through the projection into every
+   field of `Gaussians`, and on into whatever computed the means upstream (IDW skinning of
+   simulated anchors).
+
+Deterministic adjoint accumulation: every lane (pixel strip) of a tile adds its share of an
+entry's adjoint, and a Gaussian collects the adjoints of all its entries. Float scatter-adds
+would sum these in an order set by Dr.Jit's thread scheduling, so gradients would change with
+the thread count and from run to run. Instead each strip's share is rounded to a 64-bit
+integer in units of 2^-e and added with an integer scatter-add (`Int64`, exact, so any order
+gives the same sum), straight into per-Gaussian accumulators; one conversion back to float
+per Gaussian at the end. The exponents e are fixed before the loop from bounds that hold for
+every term (`_fixed_point_scales`): the image adjoints are first divided by a power of two
+2^e_γ so that γ = |δL/δC|_1 + |δL/δA - δL/δC·background| <= 1 at every pixel; then
+|δL/δα_i| <= γ and |δL/δc_i| <= γ, every pixel of a Gaussian's tiles lies within R = radius +
+tile_size of its centre, and its tiles hold at most P = (2R)² pixels, so a component's sum is
+bounded by 2 P γ times 1 (opacity, colour), (|a| + |b|) R or (|b| + |c|) R (centre), R² (conic)
+(the 2 absorbs rounding). With that bound below 2^(61 - e) the sum fits in 61 bits, i.e. a
+resolution of about 2^-61 of the bound, far below float32's 2^-24 of the value for any
+gradient not ~10^11 smaller than its bound. The exponents, the scaling by 2^e_γ (exact) and the
+max over pixels giving e_γ (max is exact in any order) do not depend on the schedule either.
 
 Memory: the forward keeps, per pixel, the final transmittance and the index after the last
 contributing entry (8 bytes/pixel), plus the tile lists and 48 bytes of packed attributes per
-list entry; nothing per (pixel, Gaussian). The backward accumulates adjoints per list entry
-(48 bytes each) and reduces them to Gaussians at the end.
+list entry; nothing per (pixel, Gaussian). The backward accumulates 9 Int64 adjoints (72 bytes)
+per Gaussian (per worker thread on the LLVM backend, whose `Expand` scatter mode gives each
+worker a copy).
 
 Pixel centres are at integer + 0.5 (see `sgdr.cameras`). The slow NumPy twin of this file is
 `sgdr.render.twin` (tests only).
@@ -54,9 +72,13 @@ from sgdr.cameras import Camera
 from sgdr.gaussians.model import Gaussians
 from sgdr.render.config import RenderConfig
 
-# Reduction mode of the adjoint's per-entry scatter-add. Auto = Expand on the LLVM backend
+# Reduction mode of the adjoint's fixed-point scatter-add. Auto = Expand on the LLVM backend
 # (per-core copies, no atomics), measured fastest here against Local and Direct.
 _SCATTER_MODE = dr.ReduceMode.Auto
+# Fixed-point accumulation (module docstring): a component's bound is kept below 2^(61 - e),
+# leaving two bits of Int64 headroom; exponents are clamped to keep 2^±e a normal float.
+_FIXED_BITS = 60
+_MIN_EXPONENT = -120
 # Tile lists are sorted by a single stable counting sort when the tile count is at most this
 # (1024x1024 images with 16-pixel tiles have 4096 tiles); above it, by dr.argsort.
 _MAX_COUNTING_SORT_BUCKETS = 1 << 14
@@ -297,43 +319,74 @@ def _gaussian_alpha(mean2d, conic, opacity, pxf, pyf, cfg):
     return dx, dy, g, raw, alpha, contrib
 
 
-# Per-entry packed attributes: one packet load per loop iteration instead of ten gathers (the
+def _pow2(e):
+    """2^e as a Float, exactly, for integer e (Int32) in [-126, 127] (built from the bits)."""
+    t = ad()
+    return dr.reinterpret_array(t.Float, t.UInt32(e + 127) << 23)
+
+
+def _floor_log2(x):
+    """floor(log2 x), exactly, for positive normal Float x (read from the exponent bits)."""
+    t = ad()
+    return t.Int32(dr.reinterpret_array(t.UInt32, x) >> 23) - 127
+
+
+def _fixed_point_scales(conic, radius, n_pixels: int, tile: int):
+    """Per-Gaussian fixed-point exponents of the adjoint's three component groups (module
+    docstring): Int32 [M] each for (centre u, v), (conic a, b, c), (opacity, colour), chosen so
+    that 2^e times the group's bound (for image adjoints with γ <= 1) stays below 2^61."""
+    R = radius + float(tile)  # every pixel of the Gaussian's tiles is within R of its centre
+    P = dr.minimum(4.0 * R * R, float(n_pixels))  # pixels in its tiles (at most the image)
+    a, b, c = dr.abs(conic.x), dr.abs(conic.y), dr.abs(conic.z)
+    bounds = (
+        2.0 * P * dr.maximum(a + b, b + c) * R,  # δu, δv
+        2.0 * P * R * R,  # δa, δb, δc
+        2.0 * P,  # δσ, δcolour
+    )
+    # B >= 2 P >= 2 tile² > 1, so e <= _FIXED_BITS; huge footprints are capped at float max
+    return tuple(dr.maximum(_FIXED_BITS - _floor_log2(dr.minimum(B, 3e38)), _MIN_EXPONENT) for B in bounds)
+
+
+# Per-entry packed attributes: one packet load per loop iteration instead of twelve gathers (the
 # LLVM backend turns gathers of consecutive floats into aligned packet loads + a transpose).
-_PACK = 12  # u, v, conic a, b, c, opacity, r, g, b, (pad x3)
-_GRAD = 12  # δu, δv, δa, δb, δc, δσ, δr, δg, δb, (pad x3)
+_PACK = 12  # u, v, conic a, b, c, opacity, r, g, b, fixed-point scales 2^e of the 3 groups
+_GRAD = 9  # δu, δv, δa, δb, δc, δσ, δr, δg, δb
+_GROUP = (0, 0, 1, 1, 1, 2, 2, 2, 2)  # fixed-point group of each adjoint component
 
 
-def _pack_entries(mean2d, conic, color, opacity, entry_gaussian):
+def _pack_entries(mean2d, conic, color, opacity, scales, entry_gaussian):
     """Flat Float [n_entries * _PACK]: the attributes of each tile-list entry, in list order."""
     t = ad()
-    comps = [mean2d.x, mean2d.y, conic.x, conic.y, conic.z, opacity, color.x, color.y, color.z]
-    n = dr.width(entry_gaussian)
+    comps = [mean2d.x, mean2d.y, conic.x, conic.y, conic.z, opacity, color.x, color.y, color.z, *scales]
     gathered = [dr.gather(t.Float, c_, entry_gaussian) for c_ in comps]
-    gathered += [dr.zeros(t.Float, n)] * (_PACK - len(comps))
     return dr.ravel(t.ArrayXf(gathered))
 
 
 def _load(packed, j, active=True):
+    """(mean2d, conic, opacity, colour, fixed-point scales) of entries j."""
     t = ad()
     e = dr.gather(t.ArrayXf, packed, j, active, shape=(_PACK, dr.width(j)))
-    return t.Array2f(e[0], e[1]), t.Array3f(e[2], e[3], e[4]), e[5], t.Array3f(e[6], e[7], e[8])
+    return t.Array2f(e[0], e[1]), t.Array3f(e[2], e[3], e[4]), e[5], t.Array3f(e[6], e[7], e[8]), (e[9], e[10], e[11])
 
 
 class _Rasterize(dr.CustomOp):
     """Phase 3 as a custom differentiable op: front-to-back forward, back-to-front adjoint.
 
     Inputs (AD): mean2d Array2f [M], conic Array3f [M], color Array3f [M], opacity Float [M].
+    Inputs (no AD): radius Float [M] footprint radius, pixels (for the fixed-point bounds).
     Outputs: rgb Float [H*W*3] (row-major, interleaved), alpha Float [H*W].
     """
 
-    def eval(self, mean2d, conic, color, opacity, bins: Bins, width, height, cfg, background):
+    def eval(self, mean2d, conic, color, opacity, radius, bins: Bins, width, height, cfg, background):
         t = ad()
         self.m = dr.width(opacity)
         self.bins, self.cfg, self.bg = bins, cfg, background
         ts, kp = int(cfg.tile_size), int(cfg.pixels_per_thread)
         tile_id, px, py0, image_to_slot = _pixel_layout(width, height, ts, bins.tiles_x, bins.tiles_y, kp)
         self.layout = (tile_id, px, py0, image_to_slot)
-        packed = _pack_entries(mean2d, conic, color, opacity, bins.entry_gaussian)
+        self.exponents = _fixed_point_scales(conic, radius, width * height, ts)
+        scales = [_pow2(e) for e in self.exponents]
+        packed = _pack_entries(mean2d, conic, color, opacity, scales, bins.entry_gaussian)
         dr.eval(packed)
         self.packed = packed
         n = dr.width(tile_id)
@@ -352,7 +405,7 @@ class _Rasterize(dr.CustomOp):
             return (j < end) & alive
 
         def body(j, T, C, last, done):
-            m2, co, op, col = _load(packed, j)
+            m2, co, op, col, _ = _load(packed, j)
             T, C, last, done = list(T), list(C), list(last), list(done)
             for k in range(kp):
                 _, _, _, _, alpha, contrib = _gaussian_alpha(m2, co, op, pxf, pyf[k], cfg)
@@ -414,6 +467,16 @@ class _Rasterize(dr.CustomOp):
         T_N = [dr.gather(t.Float, self.T_final, slot0 + k) for k in range(kp)]
         last = [dr.gather(t.UInt32, self.last, slot0 + k) for k in range(kp)]
         bg = t.Array3f(*self.bg)
+        # fixed point (module docstring): divide the image adjoints by 2^e_γ so that γ <= 1
+        g_bg_all = dr.dot(g_C_all, bg)
+        gamma = dr.max(dr.abs(g_C_all.x) + dr.abs(g_C_all.y) + dr.abs(g_C_all.z) + dr.abs(g_A_all - g_bg_all))
+        gamma_finite = dr.isfinite(gamma)  # (NaN/inf adjoints give NaN gradients, as a float sum would)
+        e_gamma = dr.select(
+            gamma_finite & (gamma > 0), dr.clip(_floor_log2(dr.maximum(gamma, 1e-30)) + 1, -125, 126), 0
+        )
+        inv_gamma = _pow2(-e_gamma)
+        g_C = [g * inv_gamma for g in g_C]
+        g_A = [g * inv_gamma for g in g_A]
         g_bg = [dr.dot(g_C[k], bg) for k in range(kp)]  # δL/δC · background
         # every thread of a tile starts at the tile's furthest last contributor (lock-step SIMD)
         tile_last = dr.zeros(t.UInt32, bins.tiles_x * bins.tiles_y)
@@ -424,9 +487,9 @@ class _Rasterize(dr.CustomOp):
         pxf = t.Float(px) + 0.5
         pyf = [t.Float(py0 + k) + 0.5 for k in range(kp)]
         packed = self.packed
-        n_entries = bins.n_entries
-        # per-entry adjoint accumulator [n_entries * _GRAD]; reduced to Gaussians afterwards
-        d_entry = dr.zeros(t.Float, n_entries * _GRAD)
+        m = self.m
+        # per-Gaussian fixed-point adjoint accumulator, Int64 [M * _GRAD]
+        d_fixed = dr.zeros(t.Int64, m * _GRAD)
         zero = dr.zeros(t.Float, n)
 
         def cond(j, T, S):
@@ -434,7 +497,7 @@ class _Rasterize(dr.CustomOp):
 
         def body(j, T, S):
             jj = j - 1
-            m2, co, op, col = _load(packed, jj)
+            m2, co, op, col, scale = _load(packed, jj)
             T, S = list(T), list(S)
             acc = [zero] * 9  # Σ over the strip: δu, δv, δa, δb, δc, δσ, δr, δg, δb
             any_contrib = t.Bool(False)
@@ -463,8 +526,9 @@ class _Rasterize(dr.CustomOp):
                 any_contrib |= contrib
                 S[k] = dr.select(contrib, col * alpha + one_minus * S[k], S[k])
                 T[k] = dr.select(contrib, T_i, T[k])
-            grads = t.ArrayXf(acc + [zero] * (_GRAD - 9))
-            dr.scatter_add(d_entry, grads, jj, any_contrib, mode=_SCATTER_MODE)
+            fixed = t.ArrayXi64([t.Int64(dr.round(a_ * scale[_GROUP[c_]])) for c_, a_ in enumerate(acc)])
+            gaussian = dr.gather(t.UInt32, bins.entry_gaussian, jj)
+            dr.scatter_add(d_fixed, fixed, gaussian, any_contrib, mode=_SCATTER_MODE)
             return jj, tuple(T), tuple(S)
 
         dr.while_loop(
@@ -473,12 +537,11 @@ class _Rasterize(dr.CustomOp):
             body,
             label="splat_backward",
         )
-        # entries -> Gaussians (a Gaussian appears once per overlapped tile)
-        m = self.m
-        d_entry = dr.gather(t.ArrayXf, d_entry, dr.arange(t.UInt32, n_entries), shape=(_GRAD, n_entries))
-        d = [dr.zeros(t.Float, m) for _ in range(9)]
-        for k in range(9):
-            dr.scatter_add(d[k], d_entry[k], bins.entry_gaussian)
+        # fixed point -> float: δ = sum · 2^-e · 2^e_γ (NaN where the image adjoints were not finite)
+        d_fixed = dr.gather(t.ArrayXi64, d_fixed, dr.arange(t.UInt32, m), shape=(_GRAD, m))
+        unscale = [_pow2(-e) for e in self.exponents]
+        to_image = dr.select(gamma_finite, _pow2(e_gamma), dr.nan)
+        d = [t.Float(d_fixed[c_]) * unscale[_GROUP[c_]] * to_image for c_ in range(_GRAD)]
         self.set_grad_in("mean2d", t.Array2f(d[0], d[1]))
         self.set_grad_in("conic", t.Array3f(d[2], d[3], d[4]))
         self.set_grad_in("opacity", d[5])
@@ -565,5 +628,7 @@ def render(gaussians: Gaussians, camera: Camera, cfg: RenderConfig) -> RenderOut
         rgb = t.TensorXf(attached_zeros(height * width * 3) + t.Float(bg_img), (height, width, 3))
         alpha = t.TensorXf(attached_zeros(height * width), (height, width))
         return RenderOutput(rgb=rgb, alpha=alpha)
-    rgb, alpha = dr.custom(_Rasterize, proj.mean2d, proj.conic, proj.color, proj.opacity, bins, width, height, cfg, bg)
+    rgb, alpha = dr.custom(
+        _Rasterize, proj.mean2d, proj.conic, proj.color, proj.opacity, proj.radius, bins, width, height, cfg, bg
+    )
     return RenderOutput(rgb=t.TensorXf(rgb, (height, width, 3)), alpha=t.TensorXf(alpha, (height, width)))

@@ -46,6 +46,9 @@ def _scene():
     sdf = placed_sdf("torus")
     points = rng.uniform(0.0, 1.0, (400_000, 3))
     points = points[sdf(points) < 0]
+    lo, hi = points.min(0), points.max(0)  # denser samples inside the torus's box
+    points = rng.uniform(lo, hi, (400_000, 3))
+    points = points[sdf(points) < 0]
     anchors = sample_anchors(points, N_ANCHORS, "fps", 0.01, SEED)
     centres = points[rng.choice(len(points), N_GAUSSIANS, replace=False)]
     colours = 0.2 + 0.6 * (centres - centres.min(0)) / np.ptp(centres, 0)

@@ -59,9 +59,7 @@ def _scene():
     ground = Ground([0.0, 0.0, float(anchors[:, 2].min()) - 0.02], [0.0, 0.0, 1.0])
     centre = anchors.mean(0)
     cams = [
-        Camera.look_at(
-            centre + 1.2 * np.array([np.cos(a), np.sin(a), 0.5]), centre, [0, 0, 1], 40.0, RES, RES, f"c{i}"
-        )
+        Camera.look_at(centre + 1.2 * np.array([np.cos(a), np.sin(a), 0.5]), centre, [0, 0, 1], 40.0, RES, RES, f"c{i}")
         for i, a in enumerate(np.linspace(0, 2 * np.pi, N_VIEWS, endpoint=False))
     ]
     rcfg = RenderConfig()

@@ -114,7 +114,9 @@ def _search_ranges(cfg) -> str | None:
     s = cfg.recon.search
     bad = [n for n in s.parameters if not float(getattr(s, f"{n}_range")[0]) < float(getattr(s, f"{n}_range")[1])]
     if bad:
-        return "; ".join(f"recon.search.{n}_range={list(getattr(s, f'{n}_range'))} must be [low, high], low < high" for n in bad)
+        return "; ".join(
+            f"recon.search.{n}_range={list(getattr(s, f'{n}_range'))} must be [low, high], low < high" for n in bad
+        )
     k = list(s.log10_k_range)
     if "log10_k" in s.parameters and not (cfg.recon.log10_k_min <= k[0] and k[1] <= cfg.recon.log10_k_max):
         return (

@@ -80,6 +80,11 @@ def test_shipped_configs_pass(preset, method):
         ("recon.run_name=a/b", "recon.run_name"),
         ("anchors.n_k=100000", "anchors.n_anchors"),  # a rule between two fields names both
         ("recon.log10_k_grid=[1.0,9.0]", "recon.log10_k_max"),
+        ("recon.search.parameters=[stiffness]", "recon.search.parameters"),
+        ("recon.search.friction_range=[0.5,0.1]", "recon.search.friction_range"),
+        ("recon.search.log10_k_range=[1.0,9.0]", "recon.log10_k_max"),
+        ("recon.search.popsize=1", "recon.search.popsize"),
+        ("recon.field_prior_strengths=[0.0]", "recon.field_prior_strengths"),
         ("backend=metal", "backend"),
     ],
 )

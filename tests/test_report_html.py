@@ -159,6 +159,41 @@ def test_warnings_name_parameters_at_bounds_and_losses_that_do_not_fall(cfg):
     ).warnings
 
 
+def _search(spread=0.0, ambiguous=False, best_k=3.0):
+    return {
+        "names": ["log10_k", "friction"],
+        "lo": [1.5, 0.0],
+        "hi": [5.0, 1.0],
+        "best": {"log10_k": best_k, "friction": 0.4},
+        "best_loss": 0.02,
+        "n_evaluations": 3,
+        "n_generations": 1,
+        "n_substeps": 40,
+        "image_scale": 1,
+        "candidates": [[best_k, 0.4], [3.5, 0.2], [2.0, 0.9]],
+        "losses": [0.02, 0.0205, 0.05],
+        "generation": [0, 0, 0],
+        "landscape": {"equivalent": [0, 1], "future_spread": spread, "ambiguous": ambiguous},
+    }
+
+
+def test_the_global_search_warns_when_equally_good_candidates_part_and_at_a_range_end(cfg, tmp_path):
+    from sgdr.pipeline.report_html import identification_body
+
+    r = cfg.recon
+    quiet = _dyn(search=_search(0.1, False), best_pass=-1, eval_loss_final=0.3)  # the start kept: no loss warning
+    assert judge(_scores(future_cd=0.1), quiet, r, cfg.physics).warnings == []
+    w = judge(_scores(future_cd=0.1), _dyn(search=_search(0.8, True)), r, cfg.physics).warnings
+    assert len(w) == 1 and "2 candidates" in w[0] and "0.8 x the object's size" in w[0]
+    w = judge(_scores(future_cd=0.1), _dyn(search=_search(best_k=5.0)), r, cfg.physics).warnings
+    assert len(w) == 1 and "upper end" in w[0] and "recon.search.log10_k_range" in w[0] and "stability" in w[0]
+    prior = {"strengths": ["inf", "1"], "holdout_frames": 2, "holdout_losses": {"inf": 0.03, "1": 0.02}, "chosen": "1"}
+    body = identification_body(tmp_path, _dyn(search=_search(0.8, True), field_prior=prior))
+    assert (tmp_path / "search.png").stat().st_size > 1000
+    assert "3 candidates in 1 generations" in body and "do not pin the physics down" in body
+    assert "no field: the global level" in body and "Chosen: 1" in body
+
+
 # ------------------------------------------------------------------------------ strict JSON scores
 def test_strict_json_replaces_non_finite_values_with_null_and_a_reason():
     missing = {"a": "already explained"}

@@ -110,7 +110,8 @@ def test_report_opens_in_a_browser_with_its_verdict(tiny_run):
     assert f"future {factor} than the physics-free baseline" in state["verdict_text"]
     assert f"{m['fit_psnr']:.1f} dB" in state["verdict_text"]
     assert len(state["videos"]) == 2 and all(v["duration"] >= 4.0 for v in state["videos"])
-    assert len(state["images"]) == 3  # per-frame metrics, losses, stiffness
+    assert len(state["images"]) == 4  # per-frame metrics, losses, the search landscape, stiffness
+    assert any(i["alt"] == "search landscape" for i in state["images"])
 
 
 def test_a_sequence_without_ground_truth_is_reported_not_nan(tmp_path):
@@ -189,14 +190,15 @@ def test_simulate_new_conditions(tiny_run):
     )
     assert len(cams) == 4 and still.images.shape[:2] == (4, 1)
     assert np.abs(still.centres - still.centres[0]).max() < 1e-4
-    # the same drop onto a ground 0.05 lower ends 0.05 lower, resting on its ground
+    # the same drop onto a ground 0.05 lower ends 0.05 lower, resting on its ground (36 frames and the
+    # mean of the last 6: a soft identified torus still rocks after the sequence's 12)
     n = asset.ground_normal / np.linalg.norm(asset.ground_normal)
     ends = {}
     for dh in (0.0, -0.05):
-        pred, _ = simulate_asset(asset, SimulateConfig(ground_height=dh, n_frames=asset.n_frames), cfg.render)
+        pred, _ = simulate_asset(asset, SimulateConfig(ground_height=dh, n_frames=36), cfg.render)
         heights = (pred.anchors - (asset.ground_point + dh * n)) @ n  # [T, N_A]
-        assert heights.min() > -1e-3
-        ends[dh] = float(heights[-1].mean() + dh)
+        assert heights.min() > -1e-3 and np.abs(heights[-6:].min(axis=1)).max() < 1e-3  # on the ground at the end
+        ends[dh] = float(heights[-6:].mean() + dh)
     assert ends[0.0] - ends[-0.05] == pytest.approx(0.05, abs=0.015)
 
 

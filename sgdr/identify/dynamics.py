@@ -702,6 +702,7 @@ def _choose_prior(
     """recon.field_prior_strengths: with one value, that one; with several, each fitted on the
     first n_fit - h fit frames from the start and scored by the open-loop rollout's all-view
     loss on the last h (h = recon.holdout_frames); .inf scores the start itself (no field).
+    A fit window too short to hold a frame out (h automatic) takes the strongest prior.
     Returns {"strengths", "holdout_frames", "holdout_losses", "chosen"} (chosen None: no prior)."""
     strengths = [float(v) for v in cfg.field_prior_strengths]
     if not strengths or cfg.stiffness != "per_anchor":
@@ -709,6 +710,14 @@ def _choose_prior(
     if len(strengths) == 1:
         return {"strengths": [f"{v:g}" for v in strengths], "chosen": f"{strengths[0]:g}"}
     h = int(cfg.holdout_frames) or max(1, n_fit // 4)
+    if n_fit - h < 2 and not int(cfg.holdout_frames):
+        # too short a fit window to hold any frame out: no evidence for a field, the strongest prior
+        log.warning("dynamics: %d fit frames are too few to choose the field prior on held-out time", n_fit)
+        return {
+            "strengths": [f"{v:g}" for v in strengths],
+            "chosen": f"{max(strengths):g}",
+            "note": f"{n_fit} fit frames: too few to hold any out; the strongest prior taken",
+        }
     if n_fit - h < 2:
         raise ValueError(
             f"recon.holdout_frames={cfg.holdout_frames}: {h} held-out frames leave fewer than 2 of the "

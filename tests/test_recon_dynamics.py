@@ -326,6 +326,12 @@ def test_the_global_search_finds_the_twins_stiffness_and_friction_and_repeats(sc
     assert res.search["landscape"]["equivalent"][0] == 0 and res.search["landscape"]["future_spread"] >= 0.0
     again = fit_dynamics(*args, pcfg, _search_cfg(), s["rcfg"], seed=0, n_predict=7)
     assert again.search["best"] == best
+    # a space-filling first look: CMA-ES starts at the best of the Sobol points (generation -1)
+    sobol = fit_dynamics(*args, pcfg, _search_cfg(initial_samples=8, generations=3), s["rcfg"], seed=0)
+    assert sobol.search["n_initial_samples"] == 8 and sobol.search["n_evaluations"] == 8 + 18
+    first = [loss for loss, g in zip(sobol.search["losses"], sobol.search["generation"]) if g == -1]
+    assert sobol.search["best_loss"] <= min(first)
+    assert abs(sobol.search["best"]["log10_k"] - TRUE["log10_k"]) < 0.1
 
 
 def test_the_search_space_skips_what_the_physics_lacks_and_caps_the_stiffness_at_the_stability_bound(scene):

@@ -190,7 +190,9 @@ def test_the_global_search_warns_when_equally_good_candidates_part_and_at_a_rang
     prior = {"strengths": ["inf", "1"], "holdout_frames": 2, "holdout_losses": {"inf": 0.03, "1": 0.02}, "chosen": "1"}
     body = identification_body(tmp_path, _dyn(search=_search(0.8, True), field_prior=prior))
     assert (tmp_path / "search.png").stat().st_size > 1000
-    assert "3 candidates in 1 generations" in body and "do not pin the physics down" in body
+    assert (
+        "3 candidates (0 space-filling, then CMA-ES in 1 generations)" in body and "do not pin the physics down" in body
+    )
     assert "no field: the global level" in body and "Chosen: 1" in body
 
 

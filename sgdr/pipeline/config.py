@@ -68,6 +68,8 @@ class SearchConfig:
     sigma0: float = 0.3  # CMA-ES's initial step, in units of each range
     popsize: int = 8  # candidates per generation (one batched rollout)
     generations: int = 10
+    initial_samples: int = 0  # scrambled Sobol points over the whole box scored first; CMA-ES starts at their best
+    #                           (0: CMA-ES starts at physics.*_init)
     image_scale: int = 1  # candidates are scored on images downscaled by this (k x k block means)
     top_k: int = 5  # candidates whose futures the report compares (within equivalent_tolerance of the best)
     equivalent_tolerance: float = 0.05  # relative loss within which candidates count as fitting equally well
@@ -168,6 +170,7 @@ SEARCH_CHECKS = {
     "sigma0": positive(),
     "popsize": at_least(2),
     "generations": at_least(1),
+    "initial_samples": non_negative("0: CMA-ES starts at physics.*_init"),
     "image_scale": at_least(1),
     "top_k": at_least(1),
     "equivalent_tolerance": non_negative(),

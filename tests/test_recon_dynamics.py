@@ -397,3 +397,43 @@ def test_the_prior_strength_is_chosen_on_held_out_frames_and_the_best_parameters
         assert np.ptp(res.log10_k) == 0.0 and res.pass_losses == []
     else:
         assert len(res.pass_losses) == 3
+
+
+def test_the_medoid_of_equally_good_candidates_is_the_one_whose_future_is_nearest_the_others():
+    """Three candidates fit alike, one (the best fit) predicts a future far from the other two:
+    `choose=medoid` hands on the one between them; a fourth that fits worse is not considered."""
+    from types import SimpleNamespace
+
+    from sgdr.backend import ad
+    from sgdr.identify.global_search import CHOICES, GlobalSearchResult, landscape
+    from sgdr.pipeline.config import SearchConfig
+
+    t = ad()
+    finals = {1.0: 0.9, 2.0: 0.1, 3.0: 0.15, 4.0: 0.12}  # candidate value -> where its centre ends up
+
+    class Scorer:
+        model = SimpleNamespace(x_rest=t.Array3f([0.0, 1.0], [0.0, 1.0], [0.0, 1.0]))
+
+        def rollout(self, values, n_frames):
+            x = np.asarray([finals[v] for v in values["friction"]])
+            pos = np.zeros((x.size, n_frames, 2, 3))
+            pos[:, 4:, :, 0] = x[:, None, None]  # frames 4.. (after a fit window of 4) at x
+            return SimpleNamespace(positions=pos)
+
+    res = GlobalSearchResult(
+        names=("friction",),
+        candidates=np.array([[1.0], [2.0], [3.0], [4.0]]),
+        losses=np.array([0.100, 0.102, 0.103, 0.2]),
+        generation=np.zeros(4, int),
+        best={"friction": 1.0},
+        best_loss=0.1,
+        n_substeps=10,
+        image_scale=1,
+    )
+    cfg = SearchConfig(equivalent_tolerance=0.05, top_k=5, spread_warning=0.25)
+    res.landscape = landscape(Scorer(), res, cfg, n_frames=8, n_fit=4)
+    assert res.landscape.equivalent == [0, 1, 2]  # the fourth fits 2x worse
+    assert res.landscape.ambiguous and res.landscape.future_spread == pytest.approx(0.8)  # size 1
+    assert res.landscape.medoid == 2 and CHOICES["medoid"](res) == {"friction": 3.0}
+    assert CHOICES["best"](res) == {"friction": 1.0}
+    assert res.to_json()["landscape"]["medoid"] == 2

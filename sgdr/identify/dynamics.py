@@ -539,7 +539,13 @@ def fit_dynamics(
     if start_info is None:
         start_info = {"k_grid": {}, "search": {}, "values": {}}
         if cfg.search.parameters:
-            from sgdr.identify.global_search import PopulationScorer, global_search, landscape, search_space
+            from sgdr.identify.global_search import (
+                CHOICES,
+                PopulationScorer,
+                global_search,
+                landscape,
+                search_space,
+            )
 
             space = search_space(cfg.search, physics_cfg, model, dt, n_t_final)
             scorer = PopulationScorer(
@@ -563,8 +569,12 @@ def fit_dynamics(
             found = global_search(scorer, space, init, cfg.search, seed, progress)
             found.landscape = landscape(scorer, found, cfg.search, max(int(n_predict), n_fit), n_fit)
             start_info["search"] = found.to_json()
-            start_info["values"] = dict(found.best)
-            log.info("dynamics: global search -> %s (loss %.5f)", found.best, found.best_loss)
+            start_info["values"] = CHOICES[cfg.search.choose](found)
+            start_info["search"]["choose"] = cfg.search.choose
+            start_info["search"]["chosen"] = start_info["values"]
+            log.info(
+                "dynamics: global search -> %s (best %s, loss %.5f)", start_info["values"], found.best, found.best_loss
+            )
         elif cfg.log10_k_grid:
             # the rollout loss is rugged in the global stiffness (bounces and contacts shift in time)
             for value in cfg.log10_k_grid:

@@ -54,6 +54,26 @@ UNSTABLE_LOSS = 10.0
 """The score of a candidate whose rollout is unstable: above any image loss (L1 and D-SSIM <= 1)."""
 
 
+def choose_best(result: GlobalSearchResult) -> dict[str, float]:
+    """The candidate with the lowest rollout loss."""
+    return dict(result.best)
+
+
+def choose_medoid(result: GlobalSearchResult) -> dict[str, float]:
+    """Of the candidates that fit about as well as the best (`Landscape.equivalent`), the one whose
+    predicted future is nearest the others': when the fit frames cannot tell them apart, the
+    prediction that errs least against the alternatives they allow (the best one itself when
+    they agree, or when it is the only one)."""
+    if result.landscape is None:
+        return dict(result.best)
+    i = result.landscape.medoid
+    return {n: float(result.candidates[i, j]) for j, n in enumerate(result.names)}
+
+
+# What the search hands on as the start of the local stage (recon.search.choose)
+CHOICES = {"best": choose_best, "medoid": choose_medoid}
+
+
 class SearchConfigError(ValueError):
     """A recon.search setting that cannot be used; the message names the key."""
 
@@ -146,6 +166,8 @@ class Landscape:
     future_spread: float
     ambiguous: bool
     centres: np.ndarray  # [len(equivalent), T, 3] their predicted centres of mass, all frames
+    medoid: int = -1  # index (into GlobalSearchResult.losses) of the equivalent candidate whose future is
+    #                   nearest the others' (least summed mean distance of the centres after the fit window)
 
 
 @dataclass
@@ -187,6 +209,7 @@ class GlobalSearchResult:
                 "equivalent": [int(np.flatnonzero(order == i)[0]) for i in self.landscape.equivalent],
                 "future_spread": self.landscape.future_spread,
                 "ambiguous": bool(self.landscape.ambiguous),
+                "medoid": int(np.flatnonzero(order == self.landscape.medoid)[0]),
             }
         return out
 
@@ -286,11 +309,13 @@ def landscape(scorer: PopulationScorer, result: GlobalSearchResult, search_cfg, 
     centres = np.nanmean(run.positions, axis=2)  # [K, T, 3]
     size = float(np.ptp(to_numpy(scorer.model.x_rest).T, axis=0).max())
     future = centres[:, int(n_fit) :]
-    spread = 0.0
+    spread, medoid = 0.0, chosen[0]
     if len(chosen) > 1 and future.shape[1] > 0:
         d = np.linalg.norm(future[:, None] - future[None, :], axis=-1)  # [K, K, T_future]
         spread = float(np.nanmax(d)) / max(size, 1e-12)
-    return Landscape(chosen, spread, spread > float(search_cfg.spread_warning), centres)
+        total = np.nansum(np.nanmean(d, axis=-1), axis=1)  # [K] summed mean distance to the others
+        medoid = chosen[int(np.argmin(total))]  # argmin takes the first (the better fit) on a tie
+    return Landscape(chosen, spread, spread > float(search_cfg.spread_warning), centres, medoid)
 
 
 def global_search(

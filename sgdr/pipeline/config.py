@@ -62,7 +62,7 @@ class SearchConfig:
     #   restitution (those the physics lacks are skipped); empty = no search (start at physics.*_init,
     #   or the best of recon.log10_k_grid)
     log10_k_range: list[float] = field(default_factory=lambda: [1.5, 5.5])  # capped by the stability bound at n_t
-    kappa_range: list[float] = field(default_factory=lambda: [-4.0, 2.0])
+    kappa_range: list[float] = field(default_factory=lambda: [-4.0, 4.0])
     friction_range: list[float] = field(default_factory=lambda: [0.0, 1.0])
     restitution_range: list[float] = field(default_factory=lambda: [0.0, 0.9])
     sigma0: float = 0.3  # CMA-ES's initial step, in units of each range
@@ -74,6 +74,8 @@ class SearchConfig:
     top_k: int = 5  # candidates whose futures the report compares (within equivalent_tolerance of the best)
     equivalent_tolerance: float = 0.05  # relative loss within which candidates count as fitting equally well
     spread_warning: float = 0.25  # warn when their predicted centres of mass part by more than this x the size
+    choose: str = "best"  # the local stage's start: "best" (the lowest loss) | "medoid" (of the equally good
+    #                       candidates, the one whose predicted future is nearest the others')
 
 
 @dataclass
@@ -175,6 +177,7 @@ SEARCH_CHECKS = {
     "top_k": at_least(1),
     "equivalent_tolerance": non_negative(),
     "spread_warning": positive(),
+    "choose": choice("sgdr.identify.global_search:CHOICES"),
 }
 CHECKS = {
     "model": choice("sgdr.pipeline.run:MODELS"),

@@ -201,6 +201,14 @@ def identification_body(out: Path, dyn: dict) -> str:
             + ", ".join(f"{n} = {_fmt(v)}" for n, v in search["best"].items())
             + "."
         )
+        chosen = search.get("chosen")
+        if chosen and search.get("choose") == "medoid" and chosen != search["best"]:
+            body += paragraph(
+                "The local stage started from the equally good candidate whose predicted future is nearest the "
+                "others' (recon.search.choose = medoid): "
+                + ", ".join(f"{n} = {_fmt(v)}" for n, v in chosen.items())
+                + "."
+            )
         body += image(
             png, "search landscape", "Every candidate's loss; red rings: those that fit about as well as the best."
         )

@@ -100,6 +100,22 @@ def cuda_available() -> bool:
         return False
 
 
+# Every `dr.freeze`-recorded function sgdr makes (`frozen`): their recordings are dropped when the
+# thread count changes, so none replays kernels recorded for another thread pool (the LLVM
+# backend's scatter-reductions size per-thread buffers at record time).
+_FROZEN: list = []
+
+
+def frozen(fn, **kwargs):
+    """`dr.freeze(fn, **kwargs)`, registered so that `init` clears its recordings whenever the
+    thread count changes."""
+    import drjit as dr
+
+    f = dr.freeze(fn, **kwargs)
+    _FROZEN.append(f)
+    return f
+
+
 def init(name: str = "llvm", threads: int | None = None) -> Backend:
     """Choose the backend once per process. Repeating the same choice is a no-op.
 
@@ -116,6 +132,8 @@ def init(name: str = "llvm", threads: int | None = None) -> Backend:
             import drjit as dr
 
             dr.set_thread_count(threads)
+            for f in _FROZEN:
+                f.clear()
             _current = Backend(name, _current.variant, threads)
         return _current
     if name == "llvm":

@@ -78,3 +78,19 @@ def test_default_method_is_the_recommended_one_at_every_preset():
         "truncated",
     )
     assert official.anchors.n_anchors == 512  # the scale stays the preset's
+
+
+def test_a_thread_count_change_drops_every_frozen_recording():
+    """No `dr.freeze` recording made for one thread pool is replayed on another."""
+    before = dr.thread_count()
+    f = backend.frozen(lambda x: x * 2 + 1)
+    t = backend.ad()
+    try:
+        assert f(t.Float(1.0, 2.0)).numpy().tolist() == [3.0, 5.0]
+        assert f.n_recordings == 1
+        backend.init("llvm", threads=1 if before != 1 else 2)
+        assert f.n_recordings == 0
+        assert f(t.Float(1.0, 2.0)).numpy().tolist() == [3.0, 5.0]  # recorded again
+    finally:
+        backend.init("llvm", threads=before)
+        backend._FROZEN.remove(f)

@@ -46,7 +46,7 @@ import drjit as dr
 import numpy as np
 
 from sgdr.arrays import array3_to_points, to_numpy
-from sgdr.backend import ad
+from sgdr.backend import ad, frozen
 from sgdr.physics.config import PhysicsConfig
 from sgdr.physics.model import Ground, PhysicsInputError, PhysParams, SimState, SpringModel
 from sgdr.physics.simulate import ADJOINTS, CONTACTS, SPRINGS, _frame_constants, stable_substeps
@@ -57,7 +57,7 @@ from sgdr.physics.simulate import ADJOINTS, CONTACTS, SPRINGS, _frame_constants,
 # width changes from one call to the next record again (one frozen function per width did the
 # same), which costs about what tracing costs: sampling with emcee's moves, whose batch widths vary,
 # gained 1.4x (486 -> 351 s for one tiny posterior).
-_frozen_frame = dr.freeze(ADJOINTS.get_named("recorded"), limit=16, warn_after=10**6)
+_frozen_frame = frozen(ADJOINTS.get_named("recorded"), limit=16, warn_after=10**6)
 
 SAMPLE_FIELDS = {"dlog10_k": (), "kappa": (), "friction": (), "restitution": (), "zeta0": (), "v0": (3,)}
 """Per-sample fields `batched_rollout` accepts, with the trailing shape of one sample's value."""

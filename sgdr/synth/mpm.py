@@ -393,7 +393,9 @@ def frozen_substep():
     if _frozen_substep is None:
         # one recording per distinct model (time step, particle and batch sizes): the PAC-NeRF
         # baseline's search records one per round (sgdr.baselines.pacnerf), which is not a misuse
-        _frozen_substep = dr.freeze(substep, warn_after=100)
+        from sgdr.backend import frozen
+
+        _frozen_substep = frozen(substep, warn_after=100)
     return _frozen_substep
 
 

@@ -20,7 +20,7 @@ from sgdr.config import compose
 # search's stability cap 3.83) -0.35: a stiff tiny torus barely deforms at 32 px, so the test
 # uses a soft twin, 0.8 decades below the start (physics.log10_k_init = 3.0).
 SHIFT = -0.6
-TOLERANCE = 0.15  # decades
+TOLERANCE = 0.2  # decades (a factor 1.6 in k): the measured errors above, plus room for another CPU's rounding
 
 
 @pytest.fixture(scope="module")

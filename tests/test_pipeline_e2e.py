@@ -44,7 +44,11 @@ def tiny_run(tmp_path_factory):
 def test_dynamic_loss_decreases_and_beats_the_baseline(tiny_run):
     _, _, out = tiny_run
     m = out.metrics
-    assert m["dynamic_eval_loss_final"] < m["dynamic_eval_loss_initial"]
+    # the default method's global search moves the stiffness from the wrong start (log10 k 2.0); what it
+    # hands on is never worse than where the dynamic stage started its passes
+    k = np.load(out.run_dir / "dynamics" / "params.npz")["log10_k"]
+    assert abs(float(np.mean(k)) - 2.0) > 0.3, float(np.mean(k))
+    assert m["dynamic_eval_loss_final"] <= m["dynamic_eval_loss_initial"]
     # issue 6's baseline: the better of "ballistic" and "held still" on the future frames
     assert m["future_cd"] < m["baseline_future_cd"], (m["future_cd"], m["baseline_future_cd_by_variant"])
     for key in ("fit_psnr", "fit_ssim", "fit_cd", "fit_emd", "future_psnr", "future_ssim", "future_emd"):
@@ -65,7 +69,10 @@ def test_run_folder_holds_the_record(tiny_run):
     d = out.run_dir
     metrics = strict_load(d / "metrics.json")
     strict_load(d / "evaluate" / "scores.json")
-    assert metrics["missing"] == {}  # the generated torus has ground truth: every score exists
+    # the generated torus has ground truth: every score exists; the default method runs no dynamic pass
+    # (its global search's values are the asset), so the pass losses are null with that reason
+    assert set(metrics["missing"]) <= {"dynamic_loss_first_pass", "dynamic_loss_last_pass"}
+    assert all("global search" in why for why in metrics["missing"].values())
     assert metrics["future_cd"] == out.metrics["future_cd"]
     # where the minutes go: every stage's wall time, plus finding/generating the sequence
     assert set(metrics["stage_seconds"]) == {"sequence", *STAGES}
@@ -300,6 +307,7 @@ def test_ctrl_c_says_how_to_resume(tiny_run):
         *overrides,
         "recon.run_name=interrupted",
         "recon.share_stages=false",  # else every stage is copied from tiny_run's folder beside it: nothing to interrupt
+        "recon.field_prior_strengths=[1.0]",  # Adam passes after the search (the default runs none): time to interrupt
         f"hydra.run.dir={cfg.recon.output_dir}/hydra",
     ]
     # SIGINT as a terminal delivers it (a background job may inherit it ignored)

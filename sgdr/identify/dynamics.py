@@ -640,6 +640,8 @@ def fit_dynamics(
         eval_start = float(resumed[1]["eval_loss_initial"])
     else:
         eval_start = eval_all(base)
+        if ckpt is not None and cfg.checkpoint_every > 0:  # the start is saved: a resumed stage does not search again
+            ckpt.save(0, {"eval_loss_initial": np.float64(eval_start), "start_info": np.array(json.dumps(start_info))})
     if chosen is not None and math.isinf(chosen):  # no field: the global values are the asset
         final, trained = base.detach(), _Train(base.detach(), [], n_t_final, eval_start, -1)
     else:
@@ -650,7 +652,7 @@ def fit_dynamics(
         start, pass_losses, n_t_floor, best = 0, [], 0, None
         if int(cfg.eval_every) > 0:
             best = (eval_start, -1, {name: to_numpy(dr.detach(opt[name])) for name in opt.keys()})
-        if resumed is not None:
+        if resumed is not None and "pass_losses" in resumed[1]:  # (a step-0 checkpoint holds the start only)
             start, arrays = resumed
             adam_from_numpy(opt, arrays)
             pass_losses = [float(x) for x in arrays["pass_losses"]]

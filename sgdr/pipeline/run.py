@@ -516,7 +516,11 @@ def run_metrics(cfg, seq_root: Path, stages: dict[str, StageResult], t_sequence:
     passes = dyn["pass_losses"]
     if not passes:
         for key in ("dynamic_loss_first_pass", "dynamic_loss_last_pass"):
-            missing[key] = "no dynamic pass ran (recon.iterations = 0)"
+            missing[key] = (
+                "no dynamic pass ran: the global search's values are the asset (recon.field_prior_strengths = [.inf])"
+                if (dyn.get("field_prior") or {}).get("chosen") == "inf"
+                else "no dynamic pass ran (recon.iterations = 0)"
+            )
     metrics = {
         **scores,
         "sequence_name": sequence_name(cfg),

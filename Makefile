@@ -37,7 +37,7 @@ data:
 # The default method (conf/method/spring_gaus.yaml) at the small preset; METHOD=official for the
 # official code's method.
 METHOD ?= spring_gaus
-# the run folders' <preset>[_<method>] part (sgdr.pipeline.run.default_run_name)
+# the run folders' <preset>[_<method>] part (sgdr.run_folder.default_run_name)
 RUN_TAG = $(PRESET)$(if $(filter spring_gaus,$(METHOD)),,_$(METHOD))
 demo:
 	$(PYTHON) experiments/reconstruct.py preset=small method=$(METHOD) synth.object=torus

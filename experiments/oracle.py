@@ -37,7 +37,7 @@ def main(cfg: DictConfig) -> None:
     with user_errors():
         sgdr.backend.init(cfg.backend, cfg.threads or None)
         from sgdr.data import load_sequence
-        from sgdr.pipeline.run import default_run_name, ensure_sequence
+        from sgdr.run_folder import default_run_name, ensure_sequence
         from sgdr.studies.oracle import oracle_study, plot_oracle
 
         logging.getLogger("sgdr").setLevel(logging.INFO)

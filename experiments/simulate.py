@@ -3,7 +3,7 @@
     python experiments/simulate.py recon.simulate.asset=outputs/torus_small_s0/asset \
         recon.simulate.stiffness_scale=0.1 recon.simulate.n_frames=60 recon.simulate.cameras=orbit
 
-Edits (all under `recon.simulate`, see sgdr/pipeline/config.py `SimulateConfig`): ground_height,
+Edits (all under `recon.simulate`, see sgdr/identify/config.py `SimulateConfig`): ground_height,
 friction, restitution (physics.contact=coulomb assets only), gravity=[gx,gy,gz], stiffness_scale,
 v0=[vx,vy,vz], n_frames, n_substeps, max_substeps; cameras=sequence|orbit. The rollout uses the
 asset's physics settings (physics.* of the command line do not act).
@@ -11,11 +11,11 @@ asset's physics settings (physics.* of the command line do not act).
 Each simulation gets its own folder, `<asset>/../simulate/<tag>` with the tag named after the
 edits (e.g. `friction-0_stiffness_scale-0.1`), a new `<tag>-2`, ... when that folder holds
 another simulation; an explicit recon.simulate.tag / out_dir holding another simulation is
-refused unless recon.simulate.overwrite=true (`sgdr.pipeline.asset.simulation_dir`). It holds
+refused unless recon.simulate.overwrite=true (`sgdr.asset.whatif.simulation_dir`). It holds
 `video.mp4` (all views tiled, or the orbit, over the ground plane), `trajectory.npz` (anchors, centres, velocities)
 and `simulate.json` (asset, edits, substeps used, momentum check).
 
-The momentum check (`sgdr.pipeline.momentum`): the springs' own impulse summed over every
+The momentum check (`sgdr.asset.momentum`): the springs' own impulse summed over every
 substep; if it moves the centre of mass by more than recon.simulate.momentum_tolerance (the
 directed springs, physics.springs=directed, do not conserve momentum) a warning is printed and
 written to simulate.json. The last line printed is one JSON object: the folder, frames,
@@ -61,17 +61,11 @@ def main(cfg: DictConfig) -> None:
 
 def simulate(cfg: DictConfig) -> None:
     sgdr.backend.init(cfg.backend, cfg.threads or None)
+    from sgdr.asset.store import load_asset
+    from sgdr.asset.whatif import edited_values, simulate_asset, simulation_dir, simulation_momentum, simulation_record
     from sgdr.config import validate
-    from sgdr.pipeline.asset import (
-        edited_values,
-        load_asset,
-        simulate_asset,
-        simulation_dir,
-        simulation_momentum,
-        simulation_record,
-    )
-    from sgdr.pipeline.report import composite_ground, tile, write_video
-    from sgdr.pipeline.run import default_run_name
+    from sgdr.report.media import composite_ground, tile, write_video
+    from sgdr.run_folder import default_run_name
 
     logging.getLogger("sgdr").setLevel(logging.INFO)
     c = OmegaConf.to_object(cfg)

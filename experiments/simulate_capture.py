@@ -1,4 +1,4 @@
-"""Write a simulated real capture in the Spring-Gaus real-capture layout (sgdr.realcap.simulate).
+"""Write a simulated real capture in the Spring-Gaus real-capture layout (sgdr.synth.capture).
 
     python experiments/simulate_capture.py preset=tiny out=/tmp/cap
     python experiments/simulate_capture.py preset=small out=data/realcap_torus realcap.object=torus seed=1
@@ -51,7 +51,7 @@ def main(cfg) -> None:
         if not c.out:
             raise ConfigError("out='': the capture's folder is required, e.g. out=/tmp/cap")
         sgdr.backend.init(c.backend, c.threads or None)
-        from sgdr.realcap.simulate import read_marker, simulate_real_capture
+        from sgdr.synth.capture import read_marker, simulate_real_capture
 
         logging.getLogger("sgdr").setLevel(logging.INFO)
         out = simulate_real_capture(c.out, c.realcap, c.seed, progress=True)

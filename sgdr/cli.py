@@ -24,7 +24,7 @@ def input_errors() -> tuple[type[Exception], ...]:
     from sgdr.checks import ConfigError
     from sgdr.data.sequence import SequenceError
     from sgdr.physics.model import PhysicsInputError
-    from sgdr.pipeline.run import RunFolderError
+    from sgdr.run_folder import RunFolderError
 
     return (ConfigError, SequenceError, RunFolderError, BackendError, PhysicsInputError, AnchorInputError)
 

@@ -12,26 +12,27 @@ from dataclasses import dataclass, field
 
 from sgdr.anchors import config as anchors_config
 from sgdr.anchors.config import AnchorConfig
+from sgdr.asset import config as simulate_config
 from sgdr.baselines import config as baseline_config
 from sgdr.baselines.config import BaselineConfig
 from sgdr.checks import ConfigError, any_text, choice, non_empty_text, non_negative, section_problems
 from sgdr.discrepancy import config as diagnose_config
 from sgdr.discrepancy.config import DiagnoseConfig
+from sgdr.identify import config as recon_config
+from sgdr.identify.config import ReconConfig
 from sgdr.physics import config as physics_config
 from sgdr.physics.config import PhysicsConfig
-from sgdr.pipeline import config as recon_config
-from sgdr.pipeline.config import ReconConfig
 from sgdr.posterior import config as posterior_config
 from sgdr.posterior.config import PosteriorConfig
-from sgdr.realcap import config as realcap_config
-from sgdr.realcap.config import RealCaptureSimConfig
 from sgdr.render import config as render_config
 from sgdr.render.config import RenderConfig
 from sgdr.static_fit import config as static_fit_config
 from sgdr.static_fit.config import StaticFitConfig
 from sgdr.studies import config as oracle_config
 from sgdr.studies.config import OracleConfig
+from sgdr.synth import capture_config as realcap_config
 from sgdr.synth import config as synth_config
+from sgdr.synth.capture_config import RealCaptureSimConfig
 from sgdr.synth.config import SynthConfig
 from sgdr.tracking import config as tracking_config
 from sgdr.tracking.config import TrackingConfig
@@ -84,7 +85,7 @@ SECTION_CHECKS = {
     "synth": synth_config.CHECKS,
     "synth.effects": synth_config.EFFECTS_CHECKS,
     "recon": recon_config.CHECKS,
-    "recon.simulate": recon_config.SIMULATE_CHECKS,
+    "recon.simulate": simulate_config.SIMULATE_CHECKS,
     "recon.search": recon_config.SEARCH_CHECKS,
     "oracle": oracle_config.CHECKS,
     "tracking": tracking_config.CHECKS,

@@ -1,6 +1,6 @@
 """Every registered simulator variant, read from the registries themselves: a newly registered
 spring law, springs variant, symmetric stiffness, contact or adjoint is picked up by the twin,
-adjoint and invariant tests without anyone editing a list (and fails them until its NumPy twin
+adjoint and invariant tests without anyone editing a list (and fails them until its NumPy reference
 in sgdr/physics/reference.py exists)."""
 
 import itertools

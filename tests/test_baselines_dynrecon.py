@@ -1,6 +1,6 @@
 """Table 2's other rows (issue 16 §4), simplified: Dy-Gaus-style tracking and 4D-Gaus-style grids.
 
-Twins whose answer is known (`sgdr.baselines.twin`): a cube of Gaussians with a colour gradient,
+Cases whose answer is known (`sgdr.baselines.known_motion`): a cube of Gaussians with a colour gradient,
 moved by a known rigid motion (rotation + translation) or a known smooth deformation (twist +
 translation) and rendered by sgdr's splatting renderer as the targets. Each baseline must bring the centres' mean error down
 to a small fraction of the motion; the priors and the grid penalties are checked against values
@@ -32,7 +32,7 @@ from sgdr.baselines.deform4d import (
     time_smoothness,
 )
 from sgdr.baselines.dyngaus import neighbour_pairs, priors, track_gaussians
-from sgdr.baselines.twin import cube_twin
+from sgdr.baselines.known_motion import known_motion_cube
 from sgdr.checks import ConfigError
 from sgdr.config import compose, validate
 
@@ -41,12 +41,12 @@ N_FRAMES = 4  # fit frames 0..3: three moving frames
 
 @pytest.fixture(scope="module")
 def rigid():
-    return cube_twin("rigid", n_gaussians=250, n_frames=N_FRAMES)
+    return known_motion_cube("rigid", n_gaussians=250, n_frames=N_FRAMES)
 
 
 @pytest.fixture(scope="module")
 def twist():
-    return cube_twin("twist", n_gaussians=250, n_frames=N_FRAMES)
+    return known_motion_cube("twist", n_gaussians=250, n_frames=N_FRAMES)
 
 
 # ---------------------------------------------------------------------------- Dy-Gaus-style tracking
@@ -182,9 +182,9 @@ def test_trilinear_grid_reproduces_a_linear_field_and_its_penalties():
 def test_fit_only_scores_the_fit_frames_and_nulls_the_future_with_the_reason():
     """A prediction of the fit frames only: the fit scores are those of a full prediction with the
     same fit frames; every future score (the physics-free baseline's too) is null with the reason."""
+    from sgdr.asset.predict import Prediction
     from sgdr.data import load_sequence
     from sgdr.evaluate.score import evaluate_prediction
-    from sgdr.pipeline.predict import Prediction
 
     seq = load_sequence(Path(__file__).parent / "data" / "sgdr_seq")  # 3 frames, 2 fit
     gts = np.stack([seq.gt_particles(f) for f in range(seq.n_frames)])

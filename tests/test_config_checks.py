@@ -150,7 +150,7 @@ def test_corrupt_image_fails_before_any_stage(tmp_path):
 
 
 def test_runs_are_named_after_the_sequence(tmp_path):
-    from sgdr.pipeline.run import default_run_name
+    from sgdr.run_folder import default_run_name
 
     assert default_run_name(_cfg(f"sequence={tmp_path / 'my banana'}")) == "my-banana_tiny_s0"
     assert default_run_name(_cfg("synth.object=apple", "seed=3", "method=official")) == "apple_tiny_official_s3"
@@ -158,7 +158,7 @@ def test_runs_are_named_after_the_sequence(tmp_path):
 
 
 def test_a_run_folder_is_never_reused_for_another_sequence(tmp_path, caplog):
-    from sgdr.pipeline.run import OWNER, RunFolderError, claim_run_dir
+    from sgdr.run_folder import OWNER, RunFolderError, claim_run_dir
 
     run = tmp_path / "outputs" / "torus_small_s0"
     a, b = tmp_path / "data" / "torus", tmp_path / "mine" / "torus"

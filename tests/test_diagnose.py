@@ -26,7 +26,7 @@ pytestmark = pytest.mark.slow  # a tiny reconstruction, twins and their diagnose
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     import sgdr.backend
-    from sgdr.pipeline.asset import load_asset
+    from sgdr.asset.store import load_asset
     from sgdr.pipeline.run import run_pipeline
 
     root = tmp_path_factory.mktemp("diagnose")
@@ -46,7 +46,7 @@ def tiny(tmp_path_factory):
 
 def diagnose(tiny, physics: dict, name: str, *extra, fields=None, truth=None):
     from sgdr.discrepancy.run import run_diagnosis
-    from sgdr.posterior.twin import twin_sequence
+    from sgdr.synth.twin import twin_sequence
 
     root, overrides, run_dir, _ = tiny
     twin = twin_sequence(run_dir / "asset", root / f"twin_{name}", truth or {}, physics=physics, fields=fields)
@@ -96,7 +96,7 @@ def test_a_stiffer_twin_is_refit_not_named_and_its_refit_asset_loads(tiny):
     """A stiffness the base model class holds (the whole field 10^0.5 stiffer) is the base refit's
     to find, not a cause: the refit recovers the shift, the candidate is judged over the refit, and
     the refit asset is written for simulate.py."""
-    from sgdr.pipeline.asset import load_asset
+    from sgdr.asset.store import load_asset
 
     shift = 0.5
     r = diagnose(tiny, {}, "stiffer", "diagnose.candidates=[heterogeneous_stiffness]", truth={"log10_k_shift": shift})
@@ -177,8 +177,8 @@ def test_plasticity_is_named_with_its_yield_strain(tiny):
 
 
 def test_two_stiffnesses_are_named_with_their_ratio_and_axis(tiny):
+    from sgdr.asset.store import load_asset
     from sgdr.discrepancy.candidates import halves
-    from sgdr.pipeline.asset import load_asset
 
     _, _, run_dir, _ = tiny
     asset = load_asset(run_dir / "asset")
@@ -196,7 +196,7 @@ def test_two_stiffnesses_are_named_with_their_ratio_and_axis(tiny):
 
 def test_drag_is_named_and_the_driver_prints_json(tiny):
     root, overrides, run_dir, _ = tiny
-    from sgdr.posterior.twin import twin_sequence
+    from sgdr.synth.twin import twin_sequence
 
     twin = twin_sequence(run_dir / "asset", root / "twin_drag", {}, physics={"air_drag": 4.0})
     proc = subprocess.run(

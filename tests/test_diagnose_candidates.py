@@ -170,7 +170,8 @@ def test_the_tilt_search_starts_from_the_fitted_offset():
 
 
 def test_downscaled_cameras_match_block_means():
-    from sgdr.cameras import Camera, block_mean, downscale_factor, downscaled
+    from sgdr.cameras import Camera
+    from sgdr.observe.images import block_mean, downscale_factor, downscaled
 
     cam = Camera.look_at([1.5, -1.0, 1.2], [0.0, 0.0, 0.2], [0, 0, 1], 40.0, 128, 96, "c")
     k = downscale_factor(cam.width, cam.height, 64)

@@ -202,15 +202,15 @@ def synthetic(n_views: int, n_frames: int, n_fit: int, hit_frame: int, empty=())
 )
 def test_record_is_strict_json_and_the_plots_are_written(tmp_path, n_views, n_frames, n_fit, hit, empty):
     from sgdr.discrepancy.report import section, write_plots
-    from sgdr.posterior.run import strict_values
+    from sgdr.evaluate.score import strict_json
 
     seq, asset, positions = synthetic(n_views, n_frames, n_fit, hit, empty)
     d = np.random.default_rng(0).uniform(0.5, 2.0, (n_views, n_frames))
     d[:, 0] = np.nan
     record, maps = R.residual_diagnostics(seq, asset, positions, d, grid=16)
-    record = strict_values(record)
+    record = strict_json(record)
     json.dumps(record, allow_nan=False)
-    json.dumps(strict_values(R.summary(record)), allow_nan=False)
+    json.dumps(strict_json(R.summary(record)), allow_nan=False)
     plots = write_plots(record, maps, tmp_path, n_views=2)
     assert all(p.stat().st_size > 1000 for p in plots.values())
     com = record["com"]

@@ -1,4 +1,4 @@
-"""Identification on twins (sgdr.posterior.twin): sequences simulated by an asset's own
+"""Identification on twins (sgdr.synth.twin): sequences simulated by an asset's own
 spring-mass model with a known truth, reconstructed by the whole pipeline at tiny.
 
 The twin's stiffness field is the asset's + a known shift, so its level (mean log10 k_i) is
@@ -27,9 +27,9 @@ TOLERANCE = 0.2  # decades (a factor 1.6 in k): the measured errors above, plus 
 def twin_run(tmp_path_factory):
     """(the asset's mean log10 k, the twin reconstruction's pipeline output)."""
     import sgdr.backend
-    from sgdr.pipeline.asset import load_asset
+    from sgdr.asset.store import load_asset
     from sgdr.pipeline.run import run_pipeline
-    from sgdr.posterior.twin import twin_sequence
+    from sgdr.synth.twin import twin_sequence
 
     root = tmp_path_factory.mktemp("twins")
     overrides = [
@@ -52,7 +52,7 @@ def twin_run(tmp_path_factory):
 
 @pytest.mark.slow
 def test_a_twins_stiffness_level_is_recovered_by_the_pipeline(twin_run):
-    from sgdr.pipeline.asset import load_asset
+    from sgdr.asset.store import load_asset
 
     asset_level, start, out = twin_run
     truth = asset_level + SHIFT

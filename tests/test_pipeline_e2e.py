@@ -186,8 +186,9 @@ def test_rerun_skips_and_corruption_is_redone(tiny_run):
 
 
 def test_simulate_new_conditions(tiny_run):
-    from sgdr.pipeline.asset import load_asset, simulate_asset
-    from sgdr.pipeline.config import SimulateConfig
+    from sgdr.asset.config import SimulateConfig
+    from sgdr.asset.store import load_asset
+    from sgdr.asset.whatif import simulate_asset
 
     overrides, cfg, out = tiny_run
     asset = load_asset(out.run_dir / "asset")
@@ -214,8 +215,9 @@ def test_simulate_warns_when_the_directed_springs_gain_momentum(tiny_run):
     momentum from its directed springs; the same edit with symmetric springs does not."""
     from dataclasses import replace
 
-    from sgdr.pipeline.asset import load_asset, simulate_asset, simulation_momentum
-    from sgdr.pipeline.config import SimulateConfig
+    from sgdr.asset.config import SimulateConfig
+    from sgdr.asset.store import load_asset
+    from sgdr.asset.whatif import simulate_asset, simulation_momentum
 
     _, cfg, out = tiny_run
     asset = load_asset(out.run_dir / "asset")

@@ -111,8 +111,8 @@ def test_logit_space_samples_the_box_prior_itself():
 
 
 def test_an_upscaled_camera_sees_the_same_view_finer():
-    from sgdr.cameras import Camera, downscaled
-    from sgdr.posterior.twin import upscaled
+    from sgdr.cameras import Camera
+    from sgdr.observe.images import downscaled, upscaled
 
     cam = Camera.look_at([2.0, 0.5, 1.0], [0.0, 0.0, 0.3], [0, 0, 1], 40.0, 32, 24, "v")
     big = upscaled(cam, 3)
@@ -134,7 +134,7 @@ def test_silhouette_discrepancy_on_a_synthetic_view():
     from scipy.ndimage import distance_transform_edt
 
     from sgdr.cameras import Camera
-    from sgdr.posterior.likelihood import Observation, discrepancy
+    from sgdr.observe.silhouette import Observation, discrepancy
 
     cam = Camera.look_at([0, 0, 5.0], [0, 0, 0], [0, 1, 0], 40.0, 64, 64)
     # the silhouette: the projection of the square [-0.5, 0.5]^2 at z = 0
@@ -181,7 +181,7 @@ def tiny(tmp_path_factory):
     """(overrides, run folder, twin folder): a tiny reconstruction and a twin of its asset."""
     import sgdr.backend
     from sgdr.pipeline.run import run_pipeline
-    from sgdr.posterior.twin import twin_sequence
+    from sgdr.synth.twin import twin_sequence
 
     root = tmp_path_factory.mktemp("posterior")
     overrides = [
@@ -202,10 +202,11 @@ slow = pytest.mark.slow  # a tiny reconstruction and rollouts
 
 @slow
 def test_likelihood_prefers_the_twins_truth(tiny):
+    from sgdr.asset.store import load_asset
     from sgdr.data import load_sequence
+    from sgdr.observe.silhouette import CentreMap, discrepancy, observation
     from sgdr.physics import Ground
-    from sgdr.pipeline.asset import load_asset
-    from sgdr.posterior.likelihood import CentreMap, SilhouetteLikelihood, discrepancy, observation
+    from sgdr.posterior.likelihood import SilhouetteLikelihood
     from sgdr.posterior.rollouts import loop_rollout
 
     _, run_dir, twin = tiny
@@ -241,8 +242,8 @@ def test_likelihood_prefers_the_twins_truth(tiny):
 
 @slow
 def test_unstable_sample_is_flagged(tiny):
+    from sgdr.asset.store import load_asset
     from sgdr.physics import Ground
-    from sgdr.pipeline.asset import load_asset
     from sgdr.posterior.rollouts import loop_rollout
 
     _, run_dir, _ = tiny
@@ -333,8 +334,8 @@ def test_tiny_posterior_on_a_twin(tiny):
 def test_batched_rollout_retries_samples_past_the_stability_bound(tiny):
     """The batched program does not retry; a sample stiffer than the asset's n_t allows is re-run
     by the loop (doubled substeps), so a stiff sample is not silently cut off the posterior."""
+    from sgdr.asset.store import load_asset
     from sgdr.physics import Ground
-    from sgdr.pipeline.asset import load_asset
     from sgdr.posterior.rollouts import ROLLOUTS
 
     _, run_dir, _ = tiny

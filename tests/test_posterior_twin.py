@@ -1,4 +1,4 @@
-"""Twin sequences (sgdr.posterior.twin): an asset's own model, simulated with a known truth and
+"""Twin sequences (sgdr.synth.twin): an asset's own model, simulated with a known truth and
 rendered, written as a sequence that sgdr reads back, with the truth recorded."""
 
 import json
@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 
 from sgdr.anchors.config import AnchorConfig
+from sgdr.asset.store import load_asset, save_asset
 from sgdr.cameras import Camera
 from sgdr.data import load_sequence
 from sgdr.gaussians.model import Gaussians
+from sgdr.observe.contact import hit_frame
 from sgdr.physics import PhysicsConfig
-from sgdr.pipeline.asset import load_asset, save_asset
-from sgdr.posterior.twin import hit_frame, twin_sequence, twin_values
+from sgdr.synth.twin import twin_sequence, twin_values
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory):
-    from sgdr.realcap.simulate import simulate_real_capture
+    from sgdr.synth.capture import simulate_real_capture
 
     cfg = OmegaConf.to_object(compose(["preset=tiny"]))
     out = tmp_path_factory.mktemp("realcap") / "cap"

@@ -10,8 +10,8 @@ from sgdr.render.config import RenderConfig
 def test_register_recovers_a_known_similarity_from_masks():
     from sgdr.arrays import to_numpy
     from sgdr.gaussians.model import Gaussians
-    from sgdr.realcap.register import RegisterConfig, euler_xyz_deg, register
     from sgdr.render.splat import render
+    from sgdr.static_fit.register import RegisterConfig, euler_xyz_deg, register
 
     rng = np.random.default_rng(5)
     # an asymmetric object in the static frame: a bar with a knob at one end and a fin

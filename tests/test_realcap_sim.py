@@ -30,10 +30,10 @@ from omegaconf import OmegaConf
 
 from sgdr.cameras import Camera
 from sgdr.config import compose
-from sgdr.realcap import layout
-from sgdr.realcap.board import Board, board_image, canonical_order
-from sgdr.realcap.calibrate import CalibrationError, calibrate_from_checkerboards, read_cameras_calib
-from sgdr.realcap.colmap import (
+from sgdr.data import capture_layout as layout
+from sgdr.data.board import Board, board_image, canonical_order
+from sgdr.data.calibrate import CalibrationError, calibrate_from_checkerboards, read_cameras_calib
+from sgdr.data.colmap import (
     ColmapCamera,
     ColmapImage,
     qvec_to_rotmat,
@@ -42,8 +42,8 @@ from sgdr.realcap.colmap import (
     rotmat_to_qvec,
     write_colmap,
 )
-from sgdr.realcap.masks import masks_from_background
-from sgdr.realcap.similarity import Similarity, camera_in, random_rotation, rotation_angle_deg
+from sgdr.data.masks import masks_from_background
+from sgdr.synth.similarity import Similarity, camera_in, random_rotation, rotation_angle_deg
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -107,7 +107,7 @@ def _photo_cameras(root, obj):
 
 # ---------------------------------------------------------------------------- the capture
 def test_generation_is_quick_and_idempotent(capture):
-    from sgdr.realcap.simulate import read_marker, simulate_real_capture
+    from sgdr.synth.capture import read_marker, simulate_real_capture
 
     root, cfg, truth, seconds = capture
     assert seconds < 60, f"the tiny capture took {seconds:.1f} s (process start included)"

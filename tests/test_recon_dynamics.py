@@ -10,17 +10,18 @@ import pytest
 
 from sgdr.anchors.config import AnchorConfig
 from sgdr.arrays import array3_to_points, points_to_array3
+from sgdr.asset.predict import physical_params
 from sgdr.cameras import Camera
 from sgdr.gaussians.model import Gaussians
 from sgdr.identify.appearance import refine_appearance
-from sgdr.identify.common import frame_targets, posed, render_rgb_numpy, to_tensor
+from sgdr.identify.config import ReconConfig
 from sgdr.identify.dynamics import fit_dynamics, substeps_at
 from sgdr.identify.velocity import fit_initial_velocity
+from sgdr.observe.targets import frame_targets
 from sgdr.physics import Ground, SimState, build_spring_model, rollout
 from sgdr.physics.config import PhysicsConfig
-from sgdr.pipeline.config import ReconConfig
-from sgdr.pipeline.predict import physical_params
 from sgdr.render.config import RenderConfig
+from sgdr.render.images import posed, render_rgb_numpy, to_tensor
 from sgdr.skin import IDWBinding
 
 FPS = 24.0
@@ -304,7 +305,7 @@ def test_a_non_finite_gradient_skips_the_adam_step_and_leaves_the_parameters_fin
 
 # ---------------------------------------------------------------------------- the global stage and the field prior
 def _search_cfg(**kw):
-    from sgdr.pipeline.config import SearchConfig
+    from sgdr.identify.config import SearchConfig
 
     search = SearchConfig(**{"parameters": ["log10_k", "friction"], "popsize": 6, "generations": 5, **kw})
     return ReconConfig(mode="full", iterations=0, substep_growth=[1.0], search=search)
@@ -335,9 +336,9 @@ def test_the_global_search_finds_the_twins_stiffness_and_friction_and_repeats(sc
 
 
 def test_the_search_space_skips_what_the_physics_lacks_and_caps_the_stiffness_at_the_stability_bound(scene):
+    from sgdr.identify.config import SearchConfig
     from sgdr.identify.global_search import SearchConfigError, search_space, stable_level
     from sgdr.physics import PhysParams, stable_substeps
-    from sgdr.pipeline.config import SearchConfig
 
     s = scene
     cfg = SearchConfig(parameters=["log10_k", "kappa", "friction", "restitution"], log10_k_range=[1.0, 9.0])
@@ -405,8 +406,8 @@ def test_the_medoid_of_equally_good_candidates_is_the_one_whose_future_is_neares
     from types import SimpleNamespace
 
     from sgdr.backend import ad
+    from sgdr.identify.config import SearchConfig
     from sgdr.identify.global_search import CHOICES, GlobalSearchResult, landscape
-    from sgdr.pipeline.config import SearchConfig
 
     t = ad()
     finals = {1.0: 0.9, 2.0: 0.1, 3.0: 0.15, 4.0: 0.12}  # candidate value -> where its centre ends up

@@ -4,9 +4,9 @@ continuation (a model fitted to its own class has no excuse)."""
 
 import numpy as np
 
+from sgdr.asset.predict import physical_params
+from sgdr.identify.config import ReconConfig
 from sgdr.physics import Ground, PhysicsConfig, SimState, build_spring_model, rollout
-from sgdr.pipeline.config import ReconConfig
-from sgdr.pipeline.predict import physical_params
 from sgdr.studies.oracle import fit_tracks, offset_scan, score_tracks, tracked_anchor_index
 
 

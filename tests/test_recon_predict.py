@@ -5,8 +5,8 @@ frame ("PhysParams.friction must hold one value, has N_A") because the value was
 import drjit as dr
 import numpy as np
 
+from sgdr.asset.predict import physical_params
 from sgdr.physics import Ground, PhysicsConfig, SimState, build_spring_model, rollout
-from sgdr.pipeline.predict import physical_params
 
 
 def test_edited_values_roll_out_on_a_frictionless_ground():

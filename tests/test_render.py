@@ -1,4 +1,4 @@
-"""Splat renderer: forward and adjoint against the dense NumPy twin, finite differences,
+"""Splat renderer: forward and adjoint against the dense NumPy reference, finite differences,
 gradients into upstream AD graphs, and bad inputs."""
 
 import drjit as dr
@@ -9,8 +9,8 @@ from sgdr.backend import ad
 from sgdr.cameras import Camera
 from sgdr.gaussians.model import Gaussians
 from sgdr.render.config import RenderConfig
+from sgdr.render.reference import FIELDS, reference_vjp, render_numpy
 from sgdr.render.splat import RenderError, render
-from sgdr.render.twin import FIELDS, render_numpy, twin_vjp
 
 
 def _scene(rng, m, lo=0.35, hi=0.65, s=(0.03, 0.08), opacity=(1.0, 1.0), iso=False):
@@ -45,7 +45,7 @@ def _grad(g, name):
         (200, True, (33, 17), (0.0, 2.0), (1.0, 1.0, 1.0)),  # many per tile, odd size
     ],
 )
-def test_forward_matches_numpy_twin(rng, m, iso, size, opacity, bg):
+def test_forward_matches_numpy_reference(rng, m, iso, size, opacity, bg):
     p = _scene(rng, m, opacity=opacity, iso=iso)
     cam = _camera(*size)
     cfg = RenderConfig(background=list(bg))
@@ -59,7 +59,7 @@ def test_forward_matches_numpy_twin(rng, m, iso, size, opacity, bg):
 
 @pytest.mark.parametrize("pixels_per_thread", [1, 2, 8, 16])
 def test_pixel_strip_widths_agree(rng, pixels_per_thread):
-    """Every strip width (pixels shaded per SIMD lane) gives the twin's image and the same
+    """Every strip width (pixels shaded per SIMD lane) gives the reference's image and the same
     gradients as the default width."""
     p = _scene(rng, 30, opacity=(2.0, 1.0), iso=True)
     cam = _camera(40, 36)
@@ -79,14 +79,14 @@ def test_pixel_strip_widths_agree(rng, pixels_per_thread):
 
 
 def test_early_termination_and_clamp_are_exercised(rng):
-    """The dense scene really saturates pixels (otherwise the twin test proves less)."""
+    """The dense scene really saturates pixels (otherwise the reference test proves less)."""
     p = _scene(rng, 40, opacity=(3.0, 0.5), iso=True)
     _, alpha = render_numpy(p, _camera(48, 32), RenderConfig())
     assert alpha.max() > 1 - 1e-3
 
 
 def test_no_per_tile_cap(rng):
-    """3000 Gaussians on one 16x16 tile: every one is composited (the twin has no cap)."""
+    """3000 Gaussians on one 16x16 tile: every one is composited (the reference has no cap)."""
     p = _scene(rng, 3000, lo=0.49, hi=0.51, s=(0.002, 0.004), opacity=(-3.0, 0.5), iso=True)
     cam = _camera(16, 16, eye=(0.5, 0.2, 0.5))
     cfg = RenderConfig()
@@ -97,8 +97,8 @@ def test_no_per_tile_cap(rng):
 
 
 @pytest.mark.parametrize("opacity, bg", [((1.0, 1.0), (0.1, 0.2, 0.3)), ((3.0, 0.5), (0.0, 0.0, 0.0))])
-def test_random_cotangent_matches_twin_vjp(rng, opacity, bg):
-    """Backward of <w, render> for random cotangents w equals the twin's finite-difference VJP,
+def test_random_cotangent_matches_reference_vjp(rng, opacity, bg):
+    """Backward of <w, render> for random cotangents w equals the reference's finite-difference VJP,
     for every field (centres, scales, rotations, colours, opacities)."""
     p = _scene(rng, 5, opacity=opacity)
     cam = _camera(32, 32)
@@ -113,7 +113,7 @@ def test_random_cotangent_matches_twin_vjp(rng, opacity, bg):
         out.alpha * t.TensorXf(w_alpha.astype(np.float32)), axis=None
     )
     dr.backward(L)
-    ref = twin_vjp(p, cam, cfg, w_rgb, w_alpha)
+    ref = reference_vjp(p, cam, cfg, w_rgb, w_alpha)
     for name in FIELDS:
         scale = np.abs(ref[name]).max()
         assert scale > 1e-3, name
@@ -158,7 +158,7 @@ def test_central_differences_of_dr_renderer(rng, name, eps):
 def test_gradients_flow_to_upstream_parameters(rng):
     """means = f(anchors, θ) computed by recorded AD upstream (an IDW-like skinning of rotated
     anchors); d loss / d anchors and d loss / dθ through the custom op match central
-    differences of the NumPy twin."""
+    differences of the NumPy reference."""
     t = ad()
     n_a, m = 4, 10
     anchors_np = rng.uniform(0.35, 0.65, (n_a, 3))

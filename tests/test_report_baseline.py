@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from sgdr.evaluate.baselines import physics_free_predictions
-from sgdr.pipeline.report import (
+from sgdr.report.media import (
     labelled_pair,
     plot_losses,
     plot_metric_curves,

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
+from sgdr.asset.predict import Prediction
 from sgdr.cameras import Camera
 from sgdr.config import compose
 from sgdr.data import load_sequence
 from sgdr.evaluate.score import evaluate_prediction, strict_json
-from sgdr.pipeline.predict import Prediction
-from sgdr.pipeline.report import FIT_COLOUR, FUTURE_COLOUR, composite_ground, playback, video_frame
-from sgdr.pipeline.verdict import judge, momentum_note
+from sgdr.report.media import FIT_COLOUR, FUTURE_COLOUR, composite_ground, playback, video_frame
+from sgdr.report.verdict import judge, momentum_note
 from tests.browser import assert_report_reads_well
 
 DATA = Path(__file__).parent / "data"
@@ -178,7 +178,7 @@ def _search(spread=0.0, ambiguous=False, best_k=3.0):
 
 
 def test_the_global_search_warns_when_equally_good_candidates_part_and_at_a_range_end(cfg, tmp_path):
-    from sgdr.pipeline.report_html import identification_body
+    from sgdr.report.html import identification_body
 
     r = cfg.recon
     quiet = _dyn(search=_search(0.1, False), best_pass=-1, eval_loss_final=0.3)  # the start kept: no loss warning
@@ -284,8 +284,8 @@ def test_report_stage_writes_a_self_contained_page(tmp_path, cfg, fixture):
 
 
 def test_a_later_driver_adds_and_replaces_a_section(tmp_path):
-    from sgdr.pipeline.report_html import Section, add_section, paragraph, write_report
-    from sgdr.pipeline.verdict import Verdict
+    from sgdr.report.html import Section, add_section, paragraph, write_report
+    from sgdr.report.verdict import Verdict
 
     page = write_report(
         tmp_path / "report.html", "run", Verdict("good", "better", "Fit good."), [Section("Scores", "")]

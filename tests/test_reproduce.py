@@ -56,7 +56,7 @@ def by_key(res):
 def test_run_dir_name_is_the_pipelines_rule():
     from types import SimpleNamespace
 
-    from sgdr.pipeline.run import DEFAULT_METHOD, default_run_name
+    from sgdr.run_folder import DEFAULT_METHOD, default_run_name
 
     assert DEFAULT_METHOD == rp.DEFAULT_METHOD
     for method in ("spring_gaus", "pacnerf"):

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from sgdr.anchors.config import AnchorConfig
-from sgdr.physics import PhysicsConfig, SimulationUnstable
-from sgdr.pipeline.asset import (
-    Asset,
+from sgdr.asset.config import SimulateConfig
+from sgdr.asset.store import Asset
+from sgdr.asset.whatif import (
     check_simulate_config,
     simulate_asset,
     simulation_dir,
@@ -20,7 +20,7 @@ from sgdr.pipeline.asset import (
     simulation_record,
     simulation_tag,
 )
-from sgdr.pipeline.config import SimulateConfig
+from sgdr.physics import PhysicsConfig, SimulationUnstable
 
 
 def small_asset(tmp_path, springs="directed", contact="coulomb", log10_k=None) -> Asset:
@@ -56,9 +56,9 @@ def small_asset(tmp_path, springs="directed", contact="coulomb", log10_k=None) -
 
 def rollout_of(asset, sim):
     """simulate_asset's rollout without rendering (the asset has no Gaussians)."""
+    from sgdr.asset.predict import physical_params, predict
+    from sgdr.asset.whatif import edited_values
     from sgdr.physics import Ground
-    from sgdr.pipeline.asset import edited_values
-    from sgdr.pipeline.predict import physical_params, predict
 
     check_simulate_config(asset, sim)
     model, binding = asset.build()
@@ -94,7 +94,7 @@ def test_restitution_is_refused_under_project_contact_and_acts_under_coulomb(tmp
         check_simulate_config(small_asset(tmp_path, contact="project"), SimulateConfig(friction=1.5))
     # coulomb: the edited e reaches the simulator (a soft random body barely bounces as a whole,
     # so this checks that the bounce changes the rollout and is recorded as edited)
-    from sgdr.pipeline.asset import edited_values
+    from sgdr.asset.whatif import edited_values
 
     asset = small_asset(tmp_path, springs="symmetric")
     assert edited_values(asset, SimulateConfig(restitution=0.9))[0]["restitution"] == 0.9
@@ -121,7 +121,7 @@ def test_each_simulation_gets_its_own_folder(tmp_path):
     assert simulation_tag(soft) == "friction-0_stiffness_scale-0.1"
     assert simulation_tag(SimulateConfig()) == "unedited"
     assert simulation_tag(SimulateConfig(gravity=[0, 0, -1.5])) == "gravity-0+0+-1.5"
-    from sgdr.pipeline.config import SIMULATE_CHECKS
+    from sgdr.asset.config import SIMULATE_CHECKS
 
     for sim in (soft, SimulateConfig(gravity=[0, 0, -1.5], v0=[1, 0, 0], cameras="orbit")):
         assert SIMULATE_CHECKS["tag"].ok(simulation_tag(sim))  # a default tag is a valid explicit one

@@ -164,8 +164,8 @@ def _leaves(d, prefix=""):
 
 
 def _stage_key_hashes(cfg):
+    from sgdr.digest import key_hash
     from sgdr.pipeline.run import STAGE_SECTIONS, stage_sections
-    from sgdr.pipeline.stages import key_hash
 
     return {stage: key_hash(stage_sections(cfg, stage)) for stage in STAGE_SECTIONS}
 

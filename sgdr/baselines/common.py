@@ -38,8 +38,8 @@ def view_choice(rng: np.random.Generator, n_views: int, views_per_step: int) -> 
 def multiview_image_loss(gaussians, targets: list, cameras: list, views: list[int], render_cfg, lam: float):
     """Mean over `views` of (1-λ) L1 + λ D-SSIM between the render of `gaussians` and the target
     (TensorXf [H, W, 3] each): a Float [1] that carries the Gaussians' gradients."""
-    from sgdr.identify.common import render
     from sgdr.loss import image_loss
+    from sgdr.render.images import render
 
     loss = 0.0
     for v in views:
@@ -63,7 +63,7 @@ def all_view_loss(gaussians, centres: np.ndarray, targets: list, cameras: list, 
     import drjit as dr
 
     from sgdr.arrays import points_to_array3, scalar
-    from sgdr.identify.common import posed
+    from sgdr.render.images import posed
 
     if len(centres) < 2:
         return 0.0

@@ -42,7 +42,7 @@ def occupancy(gaussians: dict, points: np.ndarray) -> np.ndarray:
     `Gaussians.to_numpy`) at points [N, 3]; each Gaussian acts within 3 of its largest σ."""
     from scipy.spatial import cKDTree
 
-    from sgdr.render.twin import quat_to_matrix
+    from sgdr.render.reference import quat_to_matrix
 
     means = gaussians["means"]
     scales = np.exp(gaussians["log_scales"])
@@ -209,7 +209,7 @@ class ParticleSkin:
         return self.binding.apply(ad().Array3f(*np.asarray(x, np.float32).T))
 
     def posed(self, x: np.ndarray):
-        from sgdr.identify.common import posed
+        from sgdr.render.images import posed
 
         return posed(self.gaussians, self.centres(x))
 
@@ -226,7 +226,7 @@ class Observation:
 def observe(seq, cfg) -> Observation:
     """Views (all, or `n_views` evenly spread) and fit frames 1.. (every `frame_stride`-th, the
     last fit frame always) at most `max_image_size` pixels wide."""
-    from sgdr.cameras import block_mean, downscale_factor, downscaled
+    from sgdr.observe.images import block_mean, downscale_factor, downscaled
 
     n_v = len(seq.cameras)
     views = np.arange(n_v) if not cfg.n_views or cfg.n_views >= n_v else np.linspace(0, n_v - 1, cfg.n_views)
@@ -246,7 +246,7 @@ def image_discrepancy(skin: ParticleSkin, obs: Observation, positions: np.ndarra
     positions: [T, P, 3] particle frames."""
     import drjit as dr
 
-    from sgdr.identify.common import render_rgba_numpy
+    from sgdr.render.images import render_rgba_numpy
 
     total = []
     with dr.suspend_grad():

@@ -5,7 +5,7 @@ object over that background; its code mattes every frame against the plate with 
 BackgroundMattingV2 network, whose weights cannot be downloaded here. sgdr replaces it with
 background subtraction:
 
-1. the object mask is `sgdr.realcap.masks.masks_from_background` (chromaticity and brightness
+1. the object mask is `sgdr.data.masks.masks_from_background` (chromaticity and brightness
    ratio against the plate, robust to shadows, sensor noise and JPEG; cleaned morphologically;
    measured there: IoU >= 0.92 on the simulated capture's noisy JPEG video frames, where a plain
    RGB difference threshold reached 0.65);
@@ -34,7 +34,7 @@ def matte(image: np.ndarray, plate: np.ndarray, threshold: float = 0.1) -> np.nd
         raise ValueError(f"matte: image {image.shape} and background plate {plate.shape} differ in shape")
     if not threshold > 0:
         raise ValueError(f"matte: threshold must be positive, got {threshold}")
-    from sgdr.realcap.masks import masks_from_background
+    from sgdr.data.masks import masks_from_background
 
     d = np.abs(image - plate).max(axis=-1)
     kernel = np.ones((3, 3), np.uint8)

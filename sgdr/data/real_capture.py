@@ -25,7 +25,7 @@ Cameras as the official loader builds them: the dynamic cameras' rotation is
 Rodrigues(rvecs), translation tvecs; their intrinsics are the static COLMAP camera's focal
 lengths scaled by DATA.W / DATA.W_S and DATA.H / DATA.H_S, with the principal point at the image
 centre (`Real_Capture.get_cam_info`), unless cameras_calib.json gives a camera its own "K" (as
-`sgdr.realcap.calibrate` writes it), which is then used and logged. The camera names are the
+`sgdr.data.calibrate` writes it), which is then used and logged. The camera names are the
 official three (C0733, C0787, C0801) when all are present, else every camera of
 cameras_calib.json that the sequence file lists. Lens distortion is not modelled (the official
 code ignores it too); non-zero coefficients are named in a warning.
@@ -108,7 +108,7 @@ def colmap_intrinsics(model: str, width: int, height: int, params, where) -> np.
 
 def read_static_scan(static_dir: Path, obj: str) -> Sequence:
     """The static scan as a one-frame Sequence: COLMAP cameras, photos composited with their masks."""
-    from sgdr.realcap.colmap import qvec_to_rotmat, read_colmap
+    from sgdr.data.colmap import qvec_to_rotmat, read_colmap
 
     colmap_dir = static_dir / "colmap" / obj
     for name in ("cameras.bin", "images.bin"):
@@ -305,13 +305,13 @@ def read_calibration(dyn: Path, calib_file: Path, cameras: list[str]) -> dict:
     """cameras_calib.json, or, without it, a calibration from the checkerboard images
     (`dynamic/checkerboard/<camera>/<i>.jpg`, image 0 showing the world board, and
     `dynamic/checkerboard/pattern.json` {"pattern": [cols, rows], "square_size"}) with OpenCV
-    (`sgdr.realcap.calibrate`); entries {rvecs, tvecs, K, dist} either way."""
+    (`sgdr.data.calibrate`); entries {rvecs, tvecs, K, dist} either way."""
     if calib_file.is_file():
         calib = read_json(calib_file)
         if not isinstance(calib, dict) or not calib:
             fail(calib_file, "<root>", "expected an object {camera: {rvecs, tvecs}}")
         return calib
-    from sgdr.realcap.calibrate import CalibrationError, calibrate_from_checkerboards
+    from sgdr.data.calibrate import CalibrationError, calibrate_from_checkerboards
 
     pattern_file = dyn / "checkerboard" / "pattern.json"
     if not pattern_file.is_file():

@@ -10,7 +10,7 @@
   images' quantisation only, so the fitted value of an extension has no bias from the measure;
   colour sees what a silhouette cannot (a spin about the view axis, where the pattern moves).
 - `points`: the posterior's silhouette Chamfer distance between the masks and a subset of the
-  projected Gaussian centres (`sgdr.posterior.likelihood.discrepancy`, pixels²), about 50 times
+  projected Gaussian centres (`sgdr.observe.silhouette.discrepancy`, pixels²), about 50 times
   cheaper. Centres are not silhouettes: on twins its minimum lies off the truth (for a
   plasticity twin with yield strain 0.005 at 32 px the points measure preferred 0.002), and its
   floor (the centres' representation error) dilutes the gains.
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sgdr.cameras import block_mean, downscale_factor, downscaled
+from sgdr.observe.images import block_mean, downscale_factor, downscaled
 from sgdr.registry import Registry
 
 
@@ -62,7 +62,7 @@ class RenderScorer:
         import drjit as dr
 
         from sgdr.backend import ad
-        from sgdr.identify.common import posed, render_rgba_numpy
+        from sgdr.render.images import posed, render_rgba_numpy
 
         t = ad()
         out = np.zeros((len(obs.cameras), len(obs.frames)))
@@ -81,13 +81,13 @@ def _render_scorer(asset, dc, render_cfg, seed):
 
 
 def _observe_points(seq, views, frames, dc, seed):
-    from sgdr.posterior.likelihood import observation
+    from sgdr.observe.silhouette import observation
 
     return observation(seq, views, frames, dc.n_mask_points, seed=seed)
 
 
 def _points_scorer(asset, dc, render_cfg, seed):
-    from sgdr.posterior.likelihood import CentreMap, discrepancy
+    from sgdr.observe.silhouette import CentreMap, discrepancy
 
     centre_map = CentreMap(asset, dc.n_points, seed)
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 
-def _pyplot():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
@@ -36,7 +36,7 @@ def _marks(ax, record: dict):
 
 
 def plot_d(record: dict, path) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     d = np.asarray(record["d"]["matrix"], float)  # [V, T]
     unit = record["d"].get("unit") or "the diagnosis's measure"
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 2.2 + 0.25 * d.shape[0]), sharex=True,
@@ -62,7 +62,7 @@ def plot_d(record: dict, path) -> Path:
 
 
 def plot_com(record: dict, path) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     com = record["com"]
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.2))
     styles = {"observed": ("k", "o-", "observed (triangulated)"),
@@ -86,7 +86,7 @@ def plot_com(record: dict, path) -> Path:
 
 
 def plot_spatial(record: dict, maps: list, path, n_views: int) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     shown = record["spatial"]["order"][: max(1, int(n_views))]
     fig, axes = plt.subplots(1, len(shown), figsize=(2.6 * len(shown), 2.8), squeeze=False)
     for ax, v in zip(axes[0], shown):
@@ -131,7 +131,7 @@ def _ci(fit: dict, key: str) -> str:
 def section(diagnosis: dict, record: dict | None, plots: dict | None):
     """The report's 'Model discrepancy' section: the decision and candidates, then the residuals
     (when computed). diagnosis and record are strict-JSON dicts (None for missing numbers)."""
-    from sgdr.pipeline.report_html import Section, esc, image, paragraph, table
+    from sgdr.report.html import Section, esc, image, paragraph, table
 
     body = [f'<p id="discrepancy-cause"><b>Cause named: {esc(diagnosis["cause"])}</b> '
             "(a candidate is named when its held-out gain reaches its threshold, calibrated on null data; the largest "

@@ -392,8 +392,8 @@ def residual_diagnostics(seq, asset, positions: np.ndarray, d: np.ndarray, grid:
     contact starts at the sequence's hit frame, the simulated one at the rollout's own (the first
     frame an anchor touches the asset's contact plane); the free-fall fits of both use the frames
     before the earlier of the two, so that both see the same frames of free flight."""
-    from sgdr.posterior.likelihood import CentreMap
-    from sgdr.posterior.twin import hit_frame
+    from sgdr.observe.contact import hit_frame
+    from sgdr.observe.silhouette import CentreMap
 
     cams = list(seq.cameras)
     t_n = int(min(positions.shape[0], seq.n_frames, d.shape[1]))

@@ -139,8 +139,9 @@ def run_diagnosis(cfg) -> dict:
     from sgdr.discrepancy.measures import MEASURES
     from sgdr.discrepancy.residuals import summary
     from sgdr.discrepancy.truth import scene_of, truth_values
+    from sgdr.evaluate.score import strict_json
     from sgdr.posterior.rollouts import ROLLOUTS
-    from sgdr.posterior.run import run_asset_and_sequence, run_sequence, strict_values
+    from sgdr.run_folder import run_asset_and_sequence, run_sequence
 
     dc = cfg.diagnose
     t0 = time.time()
@@ -324,13 +325,13 @@ def run_diagnosis(cfg) -> dict:
         residuals, plots = write_residuals(ev, parts, seq, asset, dc, out, measure.unit)
         record["residuals"] = summary(residuals)
     record["seconds"] = time.time() - t0
-    record = strict_values(record)
+    record = strict_json(record)
     (out / "diagnosis.json").write_text(json.dumps(record, indent=1, allow_nan=False))
     record["file"] = str(out / "diagnosis.json")
     report = run_dir / "report" / "report.html"
     if report.exists():
         from sgdr.discrepancy.report import section
-        from sgdr.pipeline.report_html import add_section
+        from sgdr.report.html import add_section
 
         add_section(report, section(record, residuals, plots))
         record["report"] = str(report)
@@ -384,8 +385,8 @@ def free_flight(seq, asset, measure, dc, seed, fit_views, held_views, fit_frames
 
 def first_touch(positions, ground_point, ground_normal) -> int | None:
     """The first frame after frame 0 in which a point of `positions` [T, N, 3] touches the ground
-    (`sgdr.posterior.twin.touching`); None when none does (or the rollout is unstable)."""
-    from sgdr.posterior.twin import touching
+    (`sgdr.observe.contact.touching`); None when none does (or the rollout is unstable)."""
+    from sgdr.observe.contact import touching
 
     if positions is None:
         return None
@@ -569,14 +570,14 @@ def write_residuals(ev, parts, seq, asset, dc, out: Path, unit: str) -> tuple[di
     returns (the strict-JSON record, {name: plot path}). unit: the measure's D unit."""
     from sgdr.discrepancy.report import write_plots
     from sgdr.discrepancy.residuals import d_matrix, residual_diagnostics
-    from sgdr.posterior.run import strict_values
+    from sgdr.evaluate.score import strict_json
 
     t0 = time.time()
     pos = ev.positions({})
     d = d_matrix(ev, parts, len(seq.cameras), min(pos.shape[0], seq.n_frames))
     record, maps = residual_diagnostics(seq, asset, pos, d, int(dc.residual_grid))
     record["d"]["unit"] = unit
-    record = strict_values(record)
+    record = strict_json(record)
     plots = write_plots(record, maps, out, int(dc.residual_views))
     record["seconds"] = time.time() - t0
     (out / "residuals.json").write_text(json.dumps(record, indent=1, allow_nan=False))

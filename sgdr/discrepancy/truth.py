@@ -116,7 +116,7 @@ def _twin_tilt(p: dict) -> dict | None:
     }
 
 
-# a twin of an asset (`sgdr.posterior.twin`) records the extension settings themselves
+# a twin of an asset (`sgdr.synth.twin`) records the extension settings themselves
 # (gt/effects.json "physics"): candidate name -> those settings -> its values, or None
 TWIN = {
     "gravity": lambda p: {"value": float(p["gravity_scale"])} if "gravity_scale" in p else None,

@@ -20,8 +20,8 @@ import numpy as np
 
 from sgdr.arrays import scalar
 from sgdr.identify.adam import make_adam
-from sgdr.identify.common import as_array3, isotropic_log_scale
-from sgdr.pipeline.config import ReconConfig
+from sgdr.identify.config import ReconConfig
+from sgdr.render.images import as_array3, isotropic_log_scale
 
 
 @dataclass
@@ -38,8 +38,8 @@ def refine_appearance(
     One random view per step (seeded); `cfg.refine_iterations` steps; learning rates
     `cfg.lr_scale`, `cfg.lr_color`, `cfg.lr_opacity`; loss weight `cfg.refine_lambda_dssim`.
     """
-    from sgdr.identify.common import render
     from sgdr.loss import image_loss
+    from sgdr.render.images import render
 
     means = dr.detach(means)
     g = gaussians.detach()

@@ -62,9 +62,9 @@ import numpy as np
 
 from sgdr.arrays import scalar, to_numpy
 from sgdr.identify.adam import adam_from_numpy, adam_to_numpy, make_adam
-from sgdr.identify.common import posed
-from sgdr.pipeline.config import ReconConfig
+from sgdr.identify.config import ReconConfig
 from sgdr.registry import Registry
+from sgdr.render.images import posed
 
 log = logging.getLogger(__name__)
 
@@ -158,9 +158,9 @@ def rollout_loss(
 
     targets: [n_fit] lists of TensorXf [H, W, 3] per view; v0 [3]; dt seconds per frame.
     """
-    from sgdr.identify.common import render
     from sgdr.loss import image_loss
     from sgdr.physics import SimState, rollout
+    from sgdr.render.images import render
 
     with dr.suspend_grad():
         state0 = SimState.at_rest(model, v0)
@@ -176,8 +176,8 @@ def rollout_loss(
 
 def _frame_loss(gaussians, binding, x, targets_f, cameras, views, render_cfg, lam):
     """Mean image loss of the bound Gaussians at anchor positions x (Array3f [N_A]) over `views`."""
-    from sgdr.identify.common import render
     from sgdr.loss import image_loss
+    from sgdr.render.images import render
 
     g = posed(gaussians, binding.apply(x))
     loss = 0.0

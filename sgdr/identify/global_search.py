@@ -237,7 +237,7 @@ class PopulationScorer:
         lam: float,
         image_scale: int = 1,
     ):
-        from sgdr.cameras import block_mean, downscaled
+        from sgdr.observe.images import block_mean, downscaled
 
         k = int(image_scale)
         if k < 1:
@@ -279,8 +279,8 @@ class PopulationScorer:
 
     def __call__(self, values: dict[str, np.ndarray]) -> np.ndarray:
         """[S] losses of the candidates {name: [S] values}."""
-        from sgdr.identify.common import posed, render
         from sgdr.loss import image_loss
+        from sgdr.render.images import posed, render
 
         t = ad()
         run = self.rollout(values, len(self.targets))

@@ -27,8 +27,8 @@ import numpy as np
 from sgdr.arrays import scalar, to_numpy
 from sgdr.backend import ad
 from sgdr.identify.adam import make_adam
-from sgdr.identify.common import posed
-from sgdr.pipeline.config import ReconConfig
+from sgdr.identify.config import ReconConfig
+from sgdr.render.images import posed
 
 
 @dataclass
@@ -55,8 +55,8 @@ def fit_initial_velocity(
     gaussians: refined Gaussians at rest (frame 0). targets_by_frame: {f: [TensorXf [H, W, 3]
     per view]} for the pre-contact frames f >= 1. gravity [3] scene units / s².
     """
-    from sgdr.identify.common import render
     from sgdr.loss import image_loss
+    from sgdr.render.images import render
 
     frames = sorted(f for f in targets_by_frame if f >= 1)
     if not frames:

@@ -7,7 +7,7 @@ contact, semi-implicit Euler, rollouts and their gradients.
 - `simulate`: spring forces, `substep`, `simulate_frame`, `rollout`, stability checks, and how
   the rollout is differentiated (module docstring).
 - `batched`: S parameter samples of one asset in one program (`batched_rollout`), forward only.
-- `reference`: the float64 NumPy twin, for tests and benchmarks only.
+- `reference`: the float64 NumPy reference, for tests and benchmarks only.
 """
 
 from sgdr.physics.config import PhysicsConfig

@@ -7,7 +7,7 @@ S x N_A anchors: `replicate_model` stacks S copies of the asset's `SpringModel` 
 anchors s N_A .. (s+1) N_A - 1, its springs point into its own copy only, so the copies never
 interact), and every parameter that differs between samples becomes a per-anchor array of
 width S x N_A holding sample s's value on copy s. The substeps are the simulator's own
-(`sgdr.physics.simulate`: `_frame_constants`, the `ADJOINTS` stepper, `substep`, the `SPRINGS`
+(`sgdr.physics.simulate`: `frame_constants`, the `ADJOINTS` stepper, `substep`, the `SPRINGS`
 and `CONTACTS` registries), so every registered spring law, springs variant, symmetric
 stiffness and contact model runs here without a second implementation. The per-anchor arrays
 line up with the anchor arrays inside them: the spring sums read sp = softplus(κ) and ζ0 at
@@ -49,7 +49,7 @@ from sgdr.arrays import array3_to_points, to_numpy
 from sgdr.backend import ad, frozen
 from sgdr.physics.config import PhysicsConfig
 from sgdr.physics.model import Ground, PhysicsInputError, PhysParams, SimState, SpringModel
-from sgdr.physics.simulate import ADJOINTS, CONTACTS, SPRINGS, _frame_constants, stable_substeps
+from sgdr.physics.simulate import ADJOINTS, CONTACTS, SPRINGS, frame_constants, stable_substeps
 
 # one recording per input layout (batch width, physics settings, first frame or not); least recently
 # used ones dropped past `limit`, so many batch widths do not pile up kernels. Measured (Dr.Jit 1.5,
@@ -228,7 +228,7 @@ def batched_rollout(
         finite = np.ones(S, dtype=bool)
         positions[0] = to_numpy(state.x)
         for f in range(1, n_frames):
-            state = stepper(replica, params, state, _frame_constants(replica, params, ground, cfg), dt, n_sub, cfg)
+            state = stepper(replica, params, state, frame_constants(replica, params, ground, cfg), dt, n_sub, cfg)
             positions[f] = to_numpy(state.x)
             v = to_numpy(state.v)
             finite &= np.isfinite(positions[f]).reshape(3, S, n).all(axis=(0, 2))

@@ -2,8 +2,8 @@
 
 Each is a `physics.*` setting whose default is the base model, so the base is nested in every
 extension and they act everywhere the simulator runs (the pipeline, `experiments/simulate.py`,
-the posterior's rollouts): they enter through `_frame_constants` and `euler_contact` of
-`sgdr.physics.simulate`, which every caller and both adjoints go through, and the float64 twin
+the posterior's rollouts): they enter through `frame_constants` and `euler_contact` of
+`sgdr.physics.simulate`, which every caller and both adjoints go through, and the float64 reference
 (`sgdr.physics.reference`) applies the same ones.
 
 - `air_drag` c (1/s): linear drag in the Euler update, v <- (v + dt (F/m + g)) / (1 + c dt), the

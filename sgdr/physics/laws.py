@@ -1,7 +1,7 @@
 """The swappable pieces of the simulator, chosen by name from `PhysicsConfig` through one
 `sgdr.registry.Registry` each: spring law (Eq. 8), symmetric-spring stiffness, soft vector
 (Eq. 15) and ground contact (Eq. 13). Each entry is a pure Dr.Jit function; `sgdr.physics.reference` holds their
-float64 NumPy twins, written separately.
+float64 NumPy references, written separately.
 """
 
 from __future__ import annotations
@@ -150,7 +150,7 @@ def softplus(a):
 
 def soft_vector_exponent(rank, n_k: int, n_c: int, normalised: bool):
     """The exponent e for 0-based spring ranks `rank` (Float or NumPy, any width); <= 0 means
-    full weight. Works on NumPy arrays too (the stability bound and the twin use it)."""
+    full weight. Works on NumPy arrays too (the stability bound and the reference use it)."""
     if normalised:
         return (rank - float(n_c)) / float(max(n_k - n_c, 1))
     return rank + 1.0 - float(n_c)

@@ -85,7 +85,7 @@ class SpringModel:
     n_anchors: int  # N_A
 
     def numpy(self) -> dict:
-        """Float64/int64 NumPy copies of the static arrays (for the reference twin and tests)."""
+        """Float64/int64 NumPy copies of the static arrays (for the NumPy reference and tests)."""
         return {
             "x_rest": array3_to_points(self.x_rest),
             "spring_j": to_numpy(self.spring_j, np.int64),

@@ -1,4 +1,4 @@
-"""Slow float64 NumPy twin of the simulator (spring force, contact, substep, frame, rollout),
+"""Slow float64 NumPy reference of the simulator (spring force, contact, substep, frame, rollout),
 written independently of the Dr.Jit code from the same equations. Used only by tests and by
 the benchmark's reference timing; never by the pipeline.
 

@@ -276,7 +276,7 @@ def check_inputs(
 # --------------------------------------------------------------------------------------------
 
 
-def _frame_constants(model: SpringModel, params: PhysParams, ground: Ground, cfg: PhysicsConfig):
+def frame_constants(model: SpringModel, params: PhysParams, ground: Ground, cfg: PhysicsConfig):
     """Per-frame values shared by all substeps (AD-attached to params where they depend on it);
     the ground and |g| as the model extensions make them (`sgdr.physics.extensions`)."""
     t = ad()
@@ -300,7 +300,7 @@ class _Boundary:
 
 def euler_contact(x, v, f, gravity, friction, restitution, consts, dt: float, cfg: PhysicsConfig):
     """Eqs. 11-13 given the spring force f: semi-implicit Euler, then ground contact.
-    consts = (inv_m, plane point, plane normal, |g|) from `_frame_constants`."""
+    consts = (inv_m, plane point, plane normal, |g|) from `frame_constants`."""
     inv_m, point, normal, g_norm = consts
     contact = CONTACTS.get_named(cfg.contact, "physics.contact")
     if cfg.gravity_scale != 1.0:  # extension: gravity's magnitude
@@ -312,19 +312,19 @@ def euler_contact(x, v, f, gravity, friction, restitution, consts, dt: float, cf
     return contact(x, v, point, normal, _Boundary(friction, restitution), dt, g_norm, cfg)  # Eq. 13
 
 
-def _contact_consts(c: dict):
+def contact_consts(c: dict):
     return c["inv_m"], c["point"], c["normal"], c["g_norm"]
 
 
 def substep(
     model: SpringModel, params: PhysParams, state: SimState, ground_c: dict, dt: float, cfg: PhysicsConfig
 ) -> SimState:
-    """One semi-implicit Euler substep (Eqs. 10-13), recorded AD; `ground_c` from `_frame_constants`."""
+    """One semi-implicit Euler substep (Eqs. 10-13), recorded AD; `ground_c` from `frame_constants`."""
     springs = SPRINGS.get_named(cfg.springs, "physics.springs")
     c = ground_c
     f = springs(model, state.x, state.v, c["k"], c["sp"], params.zeta0, cfg, rest=state.rest)
     x, v = euler_contact(
-        state.x, state.v, f, params.gravity, params.friction, params.restitution, _contact_consts(c), dt, cfg
+        state.x, state.v, f, params.gravity, params.friction, params.restitution, contact_consts(c), dt, cfg
     )
     if cfg.plastic_yield_strain != 0.0:
         # the yield gathers the new positions, and a gather evaluates its source: x alone, in a
@@ -387,7 +387,7 @@ def substeps_gather(model, params, state, c, dt, n_substeps, cfg):
         )
     springs = SPRINGS.get_named(cfg.springs, "physics.springs")
     CONTACTS.get_named(cfg.contact, "physics.contact")  # fail here, naming the setting
-    x, v = frame_gather(model, *diff, _contact_consts(c), dt, n_substeps, cfg, springs, euler_contact)
+    x, v = frame_gather(model, *diff, contact_consts(c), dt, n_substeps, cfg, springs, euler_contact)
     return SimState(x=x, v=v)
 
 
@@ -411,7 +411,7 @@ def simulate_frame(
         check_inputs(model, params, state, dt_frame, n_substeps, cfg)
     dt = float(dt_frame) / int(n_substeps)
     stepper = ADJOINTS.get_named(cfg.adjoint, "physics.adjoint")
-    state = stepper(model, params, state, _frame_constants(model, params, ground, cfg), dt, int(n_substeps), cfg)
+    state = stepper(model, params, state, frame_constants(model, params, ground, cfg), dt, int(n_substeps), cfg)
     if check and not bool(dr.all(dr.isfinite(dr.detach(state.x)) & dr.isfinite(dr.detach(state.v)), axis=None)):
         raise SimulationUnstable(
             f"NaN/inf after {n_substeps} substeps of {dt:.3g} s (spring_law={cfg.spring_law}, "

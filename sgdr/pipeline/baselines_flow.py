@@ -110,7 +110,7 @@ def pacnerf_predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
 
     from sgdr.arrays import array3_to_points
     from sgdr.baselines.pacnerf import ParticleSkin, rollout
-    from sgdr.identify.common import render_rgba_numpy
+    from sgdr.render.images import render_rgba_numpy
 
     cfg, seq, dyn = ctx.cfg.baseline.pacnerf, ctx.seq, ctx.values["dynamics"]
     particles = dyn["particles"].astype(np.float64)
@@ -142,7 +142,7 @@ def pacnerf_predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
 def load_prediction(out: Path, n_frames: int, n_views: int, what: str = "every frame"):
     """The predict stage's trajectory.npz and images.npy as a `Prediction`, checked to cover
     `n_frames` frames and `n_views` views (`what` names them in the error)."""
-    from sgdr.pipeline.predict import Prediction
+    from sgdr.asset.predict import Prediction
 
     with np.load(out / "trajectory.npz", allow_pickle=False) as z:
         a, c = z["anchors"], z["centres"]
@@ -158,8 +158,8 @@ def pacnerf_predict_load(ctx: RunContext, out: Path):
 
 # ---------------------------------------------------------------------- report
 def _scores_section(out: Path, scores: dict, n_fit: int):
-    from sgdr.pipeline import report
-    from sgdr.pipeline.report_html import Section, image, paragraph, scores_table
+    from sgdr.report import media as report
+    from sgdr.report.html import Section, image, paragraph, scores_table
 
     body = scores_table(scores)
     try:
@@ -172,9 +172,9 @@ def _scores_section(out: Path, scores: dict, n_fit: int):
 
 def plot_search(path: Path, evaluated: list, best: tuple, E_box, nu_box) -> Path:
     """The search's candidates in (log10 E, ν), coloured by their loss, the best marked."""
-    from sgdr.pipeline.report import _pyplot, _save_figure
+    from sgdr.report.media import pyplot, save_figure
 
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 4.0))
     e = np.array([c["log10_E"] for c in evaluated])
     n = np.array([c["nu"] for c in evaluated])
@@ -187,19 +187,19 @@ def plot_search(path: Path, evaluated: list, best: tuple, E_box, nu_box) -> Path
     ax.set_ylabel("ν")
     fig.colorbar(sc, ax=ax, label="log10 image loss")
     ax.legend(loc="best")
-    return _save_figure(fig, path)
+    return save_figure(fig, path)
 
 
 def pacnerf_report_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.pipeline.report_html import Section, image, paragraph, table, write_report
-    from sgdr.pipeline.verdict import Verdict, _baseline_warnings, fit_verdict, future_verdict
+    from sgdr.report.html import Section, image, paragraph, table, write_report
+    from sgdr.report.verdict import Verdict, baseline_warnings, fit_verdict, future_verdict
 
     cfg, seq, dyn, scores = ctx.cfg, ctx.seq, ctx.values["dynamics"], ctx.values["evaluate"]
     pc = cfg.baseline.pacnerf
     sections = [_scores_section(out, scores, seq.n_fit)]
     videos = report_videos(ctx, out)
     if videos:
-        from sgdr.pipeline.report_html import video
+        from sgdr.report.html import video
 
         sections.append(Section("Videos", "".join(video(p, c) for p, c in videos)))
     png = plot_search(out / "search.png", dyn["evaluated"], (dyn["log10_E"], dyn["nu"]), pc.log10_E_range, pc.nu_range)
@@ -230,7 +230,7 @@ def pacnerf_report_produce(ctx: RunContext, out: Path, ckpt) -> None:
     sections.append(Section("Identified parameters", table(("parameter", "identified", "search range"), rows)))
     fit, fit_text = fit_verdict(scores)
     future, future_head, future_text = future_verdict(scores)
-    warnings = _baseline_warnings(scores)
+    warnings = baseline_warnings(scores)
     if dyn["at_bound"]:
         warnings.append(
             "The identified value lies on the edge of the search box ("
@@ -314,7 +314,7 @@ FIT_FRAME_MODELS = {
 
 
 def _fit_targets(ctx: RunContext) -> list:
-    from sgdr.identify.common import frame_targets
+    from sgdr.observe.targets import frame_targets
 
     return [frame_targets(ctx.seq, f) for f in range(ctx.seq.n_fit)]
 
@@ -383,7 +383,7 @@ def fit_frames_predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
     import drjit as dr
 
     from sgdr.arrays import points_to_array3
-    from sgdr.identify.common import posed, render_rgba_numpy
+    from sgdr.render.images import posed, render_rgba_numpy
 
     centres = ctx.values["dynamics"]["centres"]
     images = []
@@ -420,9 +420,9 @@ def fit_frames_evaluate_produce(ctx: RunContext, out: Path, ckpt) -> None:
 
 
 def fit_frames_report_produce(model: str, ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.pipeline import report
-    from sgdr.pipeline.report_html import Section, image, paragraph, table, video, write_report
-    from sgdr.pipeline.verdict import FIT_PSNR_FAIR, FIT_PSNR_GOOD, Verdict
+    from sgdr.report import media as report
+    from sgdr.report.html import Section, image, paragraph, table, video, write_report
+    from sgdr.report.verdict import FIT_PSNR_FAIR, FIT_PSNR_GOOD, Verdict
 
     cfg, seq, dyn, scores = ctx.cfg, ctx.seq, ctx.values["dynamics"], ctx.values["evaluate"]
     what = FIT_FRAME_MODELS[model]

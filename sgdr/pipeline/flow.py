@@ -19,7 +19,7 @@ import numpy as np
 
 from sgdr.arrays import points_to_array3
 from sgdr.gaussians.ply import load_ply, save_ply
-from sgdr.identify.common import frame_targets, raised_ground
+from sgdr.observe.targets import frame_targets, raised_ground
 
 
 def contact_margin(recon_cfg, static_gaussians) -> float:
@@ -77,7 +77,7 @@ class RunContext:
         return np.asarray(self.values["velocity"]["v0"], dtype=np.float64)
 
     @property
-    def identified(self) -> dict:  # physical values of the asset (sgdr.pipeline.predict.physical_params)
+    def identified(self) -> dict:  # physical values of the asset (sgdr.asset.predict.physical_params)
         dyn = self.values["dynamics"]
         return {
             **{k: dyn[k] for k in ("log10_k", "kappa", "friction", "restitution")},
@@ -99,8 +99,8 @@ def static_produce(ctx: RunContext, out: Path, ckpt) -> None:
 
 def _static_real_capture(ctx: RunContext, out: Path) -> None:
     """Sec. 4.2: Gaussians fitted to the scan (its own frame), then registered by the dynamic
-    views' frame-0 masks (`sgdr.realcap.scan`); gaussians.ply holds them in the dynamic frame."""
-    from sgdr.realcap.scan import fit_scan, register_scan
+    views' frame-0 masks (`sgdr.static_fit.scan`); gaussians.ply holds them in the dynamic frame."""
+    from sgdr.static_fit.scan import fit_scan, register_scan
 
     cfg = ctx.cfg
     scan = fit_scan(ctx.seq.extras["static"], cfg.static_fit, cfg.render, cfg.seed, ctx.progress)
@@ -254,7 +254,7 @@ def dynamics_load(ctx: RunContext, out: Path) -> dict:
 
 # ---------------------------------------------------------------------- 6. prediction (fit frames from frame 0, then the future)
 def predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.pipeline.predict import audit_momentum, physical_params, predict
+    from sgdr.asset.predict import audit_momentum, physical_params, predict
 
     cfg, seq = ctx.cfg, ctx.seq
     params = physical_params(ctx.model, cfg.physics, ctx.identified)
@@ -280,7 +280,7 @@ def predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
 
 
 def predict_load(ctx: RunContext, out: Path):
-    from sgdr.pipeline.predict import Prediction
+    from sgdr.asset.predict import Prediction
 
     with np.load(out / "trajectory.npz", allow_pickle=False) as z:
         a, c = z["anchors"], z["centres"]
@@ -317,7 +317,7 @@ def report_frames(seq, pred, n_frames: int | None = None) -> list[np.ndarray]:
     """Labelled video frames of every frame (or of the first `n_frames`: a prediction of the fit
     frames only): [ground truth | prediction] per view, both over the sequence's ground plane,
     with the frame number and the FIT / FUTURE marker."""
-    from sgdr.pipeline import report
+    from sgdr.report import media as report
 
     grounds = [report.ground_image(cam, seq.ground_point, seq.ground_normal) for cam in seq.cameras]
     frames = []
@@ -334,7 +334,7 @@ def report_frames(seq, pred, n_frames: int | None = None) -> list[np.ndarray]:
 def report_videos(ctx: RunContext, out: Path) -> list[tuple[Path, str]]:
     """side_by_side.mp4 (every frame) and future.mp4 written into `out` unless
     recon.render_videos is off; (file, caption) of each."""
-    from sgdr.pipeline import report
+    from sgdr.report import media as report
 
     seq, pred = ctx.seq, ctx.values["predict"]
     videos = []
@@ -358,9 +358,9 @@ def report_videos(ctx: RunContext, out: Path) -> list[tuple[Path, str]]:
 
 
 def report_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.pipeline import report
-    from sgdr.pipeline.report_html import Section, run_sections, table, write_report
-    from sgdr.pipeline.verdict import judge
+    from sgdr.report import media as report
+    from sgdr.report.html import Section, run_sections, table, write_report
+    from sgdr.report.verdict import judge
 
     cfg, seq, pred, dyn = ctx.cfg, ctx.seq, ctx.values["predict"], ctx.values["dynamics"]
     videos = report_videos(ctx, out)
@@ -403,7 +403,7 @@ def report_load(ctx: RunContext, out: Path) -> list[str]:
 
 # ---------------------------------------------------------------------- 9. the simulatable asset
 def asset_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.pipeline.asset import save_asset
+    from sgdr.asset.store import save_asset
 
     save_asset(
         out,
@@ -420,7 +420,7 @@ def asset_produce(ctx: RunContext, out: Path, ckpt) -> None:
 
 
 def asset_load(ctx: RunContext, out: Path):
-    from sgdr.pipeline.asset import load_asset
+    from sgdr.asset.store import load_asset
 
     return load_asset(out)
 

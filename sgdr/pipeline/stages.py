@@ -29,7 +29,6 @@ runs it in `run_dir/<name>/` under these rules:
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import os
@@ -42,39 +41,14 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
+from sgdr.digest import file_hash, key_hash, plain
+
 log = logging.getLogger(__name__)
 
 T = TypeVar("T")
 
 MARKER = "DONE.json"
 CHECKPOINT_DIR = "checkpoint"
-
-
-def key_hash(key: Any) -> str:
-    """SHA-256 of a JSON-able description of a stage's config and inputs (sorted keys)."""
-    text = json.dumps(plain(key), sort_keys=True, default=str, separators=(",", ":"))
-    return hashlib.sha256(text.encode()).hexdigest()
-
-
-def plain(x: Any) -> Any:
-    """A JSON-able copy of a key: dataclasses and DictConfigs as dicts, arrays as digests."""
-    from dataclasses import asdict, is_dataclass
-
-    if is_dataclass(x) and not isinstance(x, type):
-        return asdict(x)
-    from omegaconf import DictConfig, ListConfig, OmegaConf
-
-    if isinstance(x, (DictConfig, ListConfig)):
-        return OmegaConf.to_container(x, resolve=True)
-    if isinstance(x, Mapping):
-        return {str(k): plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return hashlib.sha256(np.ascontiguousarray(x).tobytes()).hexdigest() + str(x.shape)
-    if isinstance(x, Path):
-        return str(x)
-    return x
 
 
 def _flatten(x: Any, prefix: str = "") -> dict[str, Any]:
@@ -101,14 +75,6 @@ def changed_entries(old: Any, new: Any, limit: int = 6) -> str:
 
     parts = [f"{k}: {show(a.get(k, '<absent>'))} -> {show(b.get(k, '<absent>'))}" for k in names[:limit]]
     return ", ".join(parts) + (f" and {len(names) - limit} more" if len(names) > limit else "")
-
-
-def file_hash(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _atomic_write_text(path: Path, text: str) -> None:

@@ -115,7 +115,7 @@ def ensemble_video(seq, centres: np.ndarray, stable: np.ndarray, path, max_views
     with the projected bound centres of every posterior draw (blue, one dot each) and of the
     posterior median (orange) on top, frame by frame over fit and future; a green bar over fit
     frames, an orange one over future frames. centres [S, T, P, 3] with the median at index 0."""
-    from sgdr.pipeline.report import playback, tile, write_video
+    from sgdr.report.media import playback, tile, write_video
 
     n_v = min(max_views, len(seq.cameras))
     views = sorted({int(round(i * len(seq.cameras) / n_v)) % len(seq.cameras) for i in range(n_v)})
@@ -238,11 +238,11 @@ def _g(x, digits=4):
 
 
 def section(record: dict, out_dir):
-    """The report's 'Posterior' section (`sgdr.pipeline.report_html.Section`); its first line is
+    """The report's 'Posterior' section (`sgdr.report.html.Section`); its first line is
     the convergence headline ('Not converged: ...' when a criterion failed)."""
     from pathlib import Path
 
-    from sgdr.pipeline.report_html import Section, esc, image, paragraph, table, video
+    from sgdr.report.html import Section, esc, image, paragraph, table, video
 
     out_dir = Path(out_dir)
     d = record["diagnostics"]

@@ -63,8 +63,8 @@ def loop_rollout(model, base_params: dict, samples: dict, ground, n_frames: int,
     import drjit as dr
 
     from sgdr.arrays import array3_to_points
+    from sgdr.asset.predict import physical_params
     from sgdr.physics import SimState, SimulationUnstable, rollout
-    from sgdr.pipeline.predict import physical_params
 
     s = sample_count(samples)
     out = np.full((s, int(n_frames), model.n_anchors, 3), np.nan)
@@ -110,8 +110,8 @@ def batched_samples_rollout(
     give the same answer for every sample (a sample unstable there too stays unstable). Before,
     these samples went through `loop_rollout` one by one: the tiny SBC case with the stiffest
     truth took 2-3x as long as the others."""
+    from sgdr.asset.predict import physical_params
     from sgdr.physics.simulate import doubled_substeps
-    from sgdr.pipeline.predict import physical_params
 
     s = sample_count(samples)
     params = physical_params(model, cfg, base_params)

@@ -25,66 +25,18 @@ from pathlib import Path
 
 import numpy as np
 
+from sgdr.evaluate.score import strict_json
+from sgdr.run_folder import run_asset_and_sequence
+
 log = logging.getLogger(__name__)
-
-
-def run_sequence(run_dir: Path) -> Path:
-    """The sequence the run reconstructed (RUN.json)."""
-    f = run_dir / "RUN.json"
-    if not f.exists():
-        raise FileNotFoundError(f"{f}: missing; is {run_dir} a finished run folder? (posterior.run)")
-    return Path(json.loads(f.read_text())["sequence"])
-
-
-def run_scene_file(run_dir: Path) -> str:
-    """The scene file the run read its foreign-layout sequence with (RUN.json), or ""."""
-    f = run_dir / "RUN.json"
-    return str(json.loads(f.read_text()).get("scene_file", "")) if f.exists() else ""
-
-
-def strict_values(obj):
-    """NaN / inf -> None, numpy -> Python, so json.dumps(allow_nan=False) succeeds."""
-    if isinstance(obj, dict):
-        return {k: strict_values(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [strict_values(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return strict_values(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
-
-
-def run_asset_and_sequence(run_dir: Path, sequence: str, scene_file: str, key: str):
-    """(asset_dir, asset, seq_dir, seq) of a finished run and the sequence it is compared with
-    (`sequence`, else the run's own, read with the run's scene file); `key` names the config
-    section (posterior | diagnose) in the errors. The sequence must have the asset's views and split."""
-    from sgdr.data import load_sequence
-    from sgdr.pipeline.asset import load_asset
-
-    asset_dir = Path(run_dir) / "asset"
-    if not (asset_dir / "asset.json").exists():
-        raise FileNotFoundError(f"{asset_dir}: no asset; {key}.run must name a finished run folder")
-    seq_dir = Path(sequence) if sequence else run_sequence(run_dir)
-    asset = load_asset(asset_dir)
-    seq = load_sequence(seq_dir, scene_file=scene_file or (run_scene_file(run_dir) if not sequence else ""))
-    if seq.n_fit != asset.n_fit or len(seq.cameras) != len(asset.cameras):
-        raise ValueError(
-            f"{key}.sequence={seq_dir}: {seq.n_fit} fit frames and {len(seq.cameras)} views, the asset "
-            f"has {asset.n_fit} and {len(asset.cameras)}; observe a sequence with the run's cameras and split"
-        )
-    return asset_dir, asset, seq_dir, seq
 
 
 def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     """cfg: the composed config (`Config`); returns the record written to posterior.json."""
+    from sgdr.observe.silhouette import CentreMap, discrepancy, observation
     from sgdr.physics import Ground
     from sgdr.posterior import predictive as pp
-    from sgdr.posterior.likelihood import CentreMap, SilhouetteLikelihood, discrepancy, observation
+    from sgdr.posterior.likelihood import SilhouetteLikelihood
     from sgdr.posterior.rollouts import ROLLOUTS
     from sgdr.posterior.sample import LogProbability, Problem, diagnose, headline, kept_samples, run_ensembles
 
@@ -197,7 +149,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
             "seconds": float(time.time() - t0),
         },
     }
-    record = strict_values(record)
+    record = strict_json(record)
     np.savez(
         out / "samples.npz",
         chains=chains,
@@ -216,7 +168,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     (out / "posterior.json").write_text(json.dumps(record, indent=1, allow_nan=False))
     report = run_dir / "report" / "report.html"
     if report.exists():
-        from sgdr.pipeline.report_html import add_section
+        from sgdr.report.html import add_section
 
         add_section(report, pp.section(record, out))
         record["report"] = str(report)

@@ -91,7 +91,7 @@ class LogProbability:
     positions -> centres; frames: the observation's frame indices into the rollout."""
 
     def __init__(self, problem: Problem, rollout_fn, centre_map, likelihood):
-        from sgdr.posterior.likelihood import discrepancy
+        from sgdr.observe.silhouette import discrepancy
 
         self.problem, self.rollout_fn, self.centre_map, self.likelihood = problem, rollout_fn, centre_map, likelihood
         self._discrepancy = discrepancy

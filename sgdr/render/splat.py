@@ -56,8 +56,8 @@ list entry; nothing per (pixel, Gaussian). The backward accumulates 9 Int64 adjo
 per Gaussian (per worker thread on the LLVM backend, whose `Expand` scatter mode gives each
 worker a copy).
 
-Pixel centres are at integer + 0.5 (see `sgdr.cameras`). The slow NumPy twin of this file is
-`sgdr.render.twin` (tests only).
+Pixel centres are at integer + 0.5 (see `sgdr.cameras`). The slow NumPy reference of this file is
+`sgdr.render.reference` (tests only).
 """
 
 from __future__ import annotations

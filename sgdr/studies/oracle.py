@@ -24,7 +24,7 @@ import numpy as np
 from sgdr.arrays import array3_to_points, points_to_array3, scalar, to_numpy
 from sgdr.evaluate.baselines import BASELINES, ISSUE_BASELINES, physics_free_predictions
 from sgdr.evaluate.geometry import chamfer_distance
-from sgdr.identify.common import raised_ground
+from sgdr.observe.targets import raised_ground
 
 
 @dataclass
@@ -193,8 +193,8 @@ def offset_scan(
     "fit_track_error", "future_track_error", "final_centre" [3]}]; ensemble: the mean rollout
     of the offsets whose fit error is within `ensemble_tol` x the best, scored the same way
     ({"offsets", "fit_track_error", "future_track_error", "spread_last"}; {} without offsets)."""
+    from sgdr.asset.predict import physical_params
     from sgdr.physics import build_spring_model
-    from sgdr.pipeline.predict import physical_params
 
     offsets = [float(o) for o in offsets]
     if not offsets:

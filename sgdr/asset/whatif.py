@@ -17,148 +17,16 @@ from __future__ import annotations
 import json
 import logging
 import math
-from dataclasses import asdict, dataclass, fields, is_dataclass
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
 
+from sgdr.asset.store import Asset
 from sgdr.cameras import Camera
 from sgdr.registry import Registry
 
 log = logging.getLogger(__name__)
-
-
-def _plain(x):
-    if is_dataclass(x) and not isinstance(x, type):
-        return asdict(x)
-    from omegaconf import DictConfig, OmegaConf
-
-    if isinstance(x, DictConfig):
-        return OmegaConf.to_container(x, resolve=True)
-    return dict(x)
-
-
-@dataclass
-class Asset:
-    root: Path
-    gaussians: object  # Gaussians [M]
-    anchors: np.ndarray  # [N_A, 3]
-    rest_centres: np.ndarray  # [M, 3]
-    values: dict  # log10_k [N_A], kappa, friction, restitution, v0 [3], gravity [3]
-    physics: object  # PhysicsConfig
-    anchor_cfg: object  # AnchorConfig
-    ground_point: np.ndarray  # [3]
-    ground_normal: np.ndarray  # [3] unit, up
-    fps: float
-    n_frames: int
-    n_fit: int
-    n_substeps: int
-    cameras: list[Camera]
-
-    def build(self):
-        """(SpringModel, IDWBinding) rebuilt from the rest anchors and centres."""
-        from sgdr.physics import build_spring_model
-        from sgdr.skin import IDWBinding
-
-        model = build_spring_model(self.anchors, self.anchor_cfg.n_k, self.physics)
-        binding = IDWBinding.build(
-            self.rest_centres, self.anchors, self.anchor_cfg.n_b, self.anchor_cfg.p_b, self.anchor_cfg.binding
-        )
-        return model, binding
-
-
-def save_asset(
-    out,
-    gaussians,
-    anchors,
-    values: dict,
-    physics_cfg,
-    anchor_cfg,
-    seq,
-    n_substeps: int,
-    rest_centres,
-    ground_point=None,
-) -> Path:
-    """ground_point [3]: the anchors' contact plane as simulated (the sequence's ground raised by
-    the pipeline's contact margin); None = the sequence's ground point."""
-    from sgdr.gaussians.ply import save_ply
-
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    save_ply(out / "gaussians.ply", gaussians)
-    np.save(out / "anchors.npy", np.asarray(anchors, np.float64))
-    np.save(out / "rest_centres.npy", np.asarray(rest_centres, np.float64))
-    np.savez(out / "params.npz", **{k: np.asarray(v, np.float64) for k, v in values.items()})
-    meta = {
-        "physics": _plain(physics_cfg),
-        "anchors": _plain(anchor_cfg),
-        "ground": {
-            "point": np.asarray(seq.ground_point if ground_point is None else ground_point, float).tolist(),
-            "normal": np.asarray(seq.ground_normal, float).tolist(),
-        },
-        "fps": float(seq.fps),
-        "n_frames": int(seq.n_frames),
-        "n_fit": int(seq.n_fit),
-        "n_substeps": int(n_substeps),
-        "cameras": [c.to_dict() for c in seq.cameras],
-    }
-    (out / "asset.json").write_text(json.dumps(meta, indent=1))
-    return out
-
-
-def load_asset(path) -> Asset:
-    """Read an asset folder; raises naming the file and field on anything missing."""
-    from sgdr.anchors.config import AnchorConfig
-    from sgdr.gaussians.ply import load_ply
-    from sgdr.physics.config import PhysicsConfig
-
-    root = Path(path)
-    meta_file = root / "asset.json"
-    if not meta_file.exists():
-        if (root / "pacnerf.json").is_file():
-            raise FileNotFoundError(
-                f"{root} is the PAC-NeRF baseline's MPM object (pacnerf.json), not a spring-mass asset: "
-                "experiments/simulate.py simulates spring-mass assets only"
-            )
-        raise FileNotFoundError(f"{meta_file}: not an sgdr asset (asset.json missing)")
-    meta = json.loads(meta_file.read_text())
-    for key in ("physics", "anchors", "ground", "fps", "n_frames", "n_fit", "n_substeps", "cameras"):
-        if key not in meta:
-            raise ValueError(f"{meta_file}: field {key!r} is missing")
-    with np.load(root / "params.npz", allow_pickle=False) as z:
-        values = {k: (z[k] if z[k].ndim else float(z[k])) for k in z.files}
-    anchors = np.load(root / "anchors.npy", allow_pickle=False)
-    rest = np.load(root / "rest_centres.npy", allow_pickle=False)
-    if values["log10_k"].shape != (anchors.shape[0],):
-        raise ValueError(
-            f"{root / 'params.npz'}: log10_k has {values['log10_k'].shape}, expected ({anchors.shape[0]},)"
-        )
-    return Asset(
-        root=root,
-        gaussians=load_ply(root / "gaussians.ply"),
-        anchors=anchors,
-        rest_centres=rest,
-        values=values,
-        physics=_known_fields(PhysicsConfig, meta["physics"], meta_file),
-        anchor_cfg=_known_fields(AnchorConfig, meta["anchors"], meta_file),
-        ground_point=np.asarray(meta["ground"]["point"], float),
-        ground_normal=np.asarray(meta["ground"]["normal"], float),
-        fps=float(meta["fps"]),
-        n_frames=int(meta["n_frames"]),
-        n_fit=int(meta["n_fit"]),
-        n_substeps=int(meta["n_substeps"]),
-        cameras=[Camera.from_dict(c, where=f"{meta_file} cameras[{i}]") for i, c in enumerate(meta["cameras"])],
-    )
-
-
-def _known_fields(schema, values: dict, where):
-    """schema(**values) without the settings the schema no longer has (an asset written before
-    a setting was removed, e.g. physics.grad_mode); each dropped one is logged."""
-    known = {f.name for f in fields(schema)}
-    dropped = sorted(set(values) - known)
-    if dropped:
-        log.warning("%s: ignoring settings that no longer exist: %s", where, dropped)
-    return schema(**{k: v for k, v in values.items() if k in known})
 
 
 def orbit_cameras(asset: Asset, n: int) -> list[Camera]:
@@ -262,13 +130,13 @@ def simulate_asset(asset: Asset, sim_cfg, render_cfg, progress: bool = False):
     asset's physics.retry_on_nan) up to recon.simulate.max_substeps (0 = the asset's
     physics.max_substeps), and if still unstable the error names those two keys and the
     substeps tried. The Prediction's `n_substeps` is what the rollout used, its `velocities`
-    feed `sgdr.pipeline.momentum.momentum_check`. Invalid edits raise ValueError naming
+    feed `sgdr.asset.momentum.momentum_check`. Invalid edits raise ValueError naming
     `recon.simulate.<field>` (`check_simulate_config`).
     """
     from dataclasses import replace
 
+    from sgdr.asset.predict import physical_params
     from sgdr.physics import Ground, SimulationUnstable
-    from sgdr.pipeline.predict import physical_params
 
     check_simulate_config(asset, sim_cfg)
     render_with = SIMULATE_CAMERAS.get_named(sim_cfg.cameras)
@@ -307,7 +175,7 @@ def simulation_tag(sim_cfg) -> str:
     e.g. `friction-0_stiffness_scale-0.1`, `gravity-0+0+-1.5`; `unedited` when nothing is edited."""
     from dataclasses import fields as dc_fields
 
-    from sgdr.pipeline.config import SimulateConfig
+    from sgdr.asset.config import SimulateConfig
 
     default = SimulateConfig()
     parts = []
@@ -334,7 +202,7 @@ def simulation_tag(sim_cfg) -> str:
 
 def _simulation_record(sim_cfg, asset_dir) -> dict:
     """What identifies a simulation in its simulate.json: the asset folder and the edits."""
-    from sgdr.pipeline.config import SimulateConfig
+    from sgdr.asset.config import SimulateConfig
 
     edits = {
         f.name: getattr(sim_cfg, f.name)
@@ -405,7 +273,7 @@ SIMULATE_CAMERAS = Registry("simulate camera set", "recon.simulate.cameras", Val
 @SIMULATE_CAMERAS.register("sequence")
 def simulate_sequence_cameras(asset, model, params, binding, ground, n_frames, n_t, render_cfg, progress, physics):
     """Every sequence camera renders every frame."""
-    from sgdr.pipeline.predict import predict
+    from sgdr.asset.predict import predict
 
     return predict(
         model,
@@ -428,8 +296,8 @@ def simulate_sequence_cameras(asset, model, params, binding, ground, n_frames, n
 def simulate_orbit_cameras(asset, model, params, binding, ground, n_frames, n_t, render_cfg, progress, physics):
     """Frame t from orbit camera t: one turn around the object over the clip."""
     from sgdr.arrays import points_to_array3
-    from sgdr.identify.common import posed, render_rgba_numpy
-    from sgdr.pipeline.predict import Prediction, predict
+    from sgdr.asset.predict import Prediction, predict
+    from sgdr.render.images import posed, render_rgba_numpy
 
     traj = predict(
         model,
@@ -455,15 +323,15 @@ def simulate_orbit_cameras(asset, model, params, binding, ground, n_frames, n_t,
 
 
 def simulation_momentum(asset: Asset, sim_cfg, pred) -> dict:
-    """`sgdr.pipeline.momentum.momentum_check` of a `simulate_asset` result under the same edits:
+    """`sgdr.asset.momentum.momentum_check` of a `simulate_asset` result under the same edits:
     the rollout is re-run substep by substep (`internal_impulses`, with the n_t the rollout used)
     to sum its spring forces; masses from the asset's spring model, gravity and ground as edited."""
     from dataclasses import replace
 
     from sgdr.arrays import to_numpy
+    from sgdr.asset.momentum import internal_impulses, momentum_check
+    from sgdr.asset.predict import physical_params
     from sgdr.physics import Ground
-    from sgdr.pipeline.momentum import internal_impulses, momentum_check
-    from sgdr.pipeline.predict import physical_params
 
     if pred.velocities is None or not pred.n_substeps:
         raise ValueError("the prediction has no anchor velocities or substeps (simulate_asset's rollouts have them)")

@@ -4,7 +4,7 @@
 1. every image is read and turned grey; `cv2.findChessboardCorners` (adaptive threshold,
    normalised image) finds the pattern's inner corners, `cv2.cornerSubPix` refines them in a
    window of about 0.4 x the smallest corner spacing (2..11 px half-width);
-2. `sgdr.realcap.board.canonical_order` puts them in the board convention (corner (0, 0) next
+2. `sgdr.data.board.canonical_order` puts them in the board convention (corner (0, 0) next
    to the black outer square, the board's z axis away from the camera), so that the first
    image's board defines the world frame without ambiguity;
 3. they are moved to sgdr's pixel convention (pixel centres at integer + 0.5, `sgdr.cameras`;
@@ -35,7 +35,7 @@ from typing import NamedTuple
 import numpy as np
 
 from sgdr.cameras import Camera
-from sgdr.realcap.board import Board, canonical_order
+from sgdr.data.board import Board, canonical_order
 
 log = logging.getLogger(__name__)
 

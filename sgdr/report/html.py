@@ -2,7 +2,7 @@
 
 Readable without the code and without a server: every image and video is embedded as a data
 URI, the styles are inline, there is no script and nothing is fetched. The page opens with the
-verdict (`sgdr.pipeline.verdict`: fit quality, the future against the physics-free baselines,
+verdict (`sgdr.report.verdict`: fit quality, the future against the physics-free baselines,
 in words), then the warnings, then one `Section` after another.
 
 Adding a section (the posterior, discrepancy and table issues): write a function that returns
@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from sgdr.pipeline.verdict import Verdict
+from sgdr.report.verdict import Verdict
 
 MAX_EMBED_BYTES = 64 * 2**20  # a larger file is linked instead of embedded (the page stays loadable)
 MIME = {".png": "image/png", ".mp4": "video/mp4", ".webm": "video/webm", ".gif": "image/gif"}
@@ -123,7 +123,7 @@ def add_section(path, section: Section) -> Path:
     path = Path(path)
     page = path.read_text(encoding="utf-8")
     if NAV_END not in page or SECTIONS_END not in page:
-        raise ValueError(f"{path}: not a report written by sgdr.pipeline.report_html.write_report (markers missing)")
+        raise ValueError(f"{path}: not a report written by sgdr.report.html.write_report (markers missing)")
     old = re.compile(
         rf"<!--section:{re.escape(section.anchor)}-->.*?<!--/section:{re.escape(section.anchor)}-->\n", re.S
     )
@@ -186,7 +186,7 @@ def scores_table(scores: dict) -> str:
 def identification_body(out: Path, dyn: dict) -> str:
     """How sure the identification is: the global search's landscape (plot, the best
     candidates, the spread of their futures) and the field prior's choice on held-out time."""
-    from sgdr.pipeline import report
+    from sgdr.report import media as report
 
     body = ""
     search = dyn.get("search") or {}
@@ -258,9 +258,9 @@ def run_sections(
 ) -> list[Section]:
     """The base sections of a run's report; writes their plots into `out` (metric_curves.png,
     losses.png, stiffness.png). videos: (file in `out`, caption) already written; momentum: the
-    predict stage's momentum audit (`sgdr.pipeline.predict.audit_momentum`), if made."""
-    from sgdr.pipeline import report
-    from sgdr.pipeline.verdict import momentum_note, parameter_rows
+    predict stage's momentum audit (`sgdr.asset.predict.audit_momentum`), if made."""
+    from sgdr.report import media as report
+    from sgdr.report.verdict import momentum_note, parameter_rows
 
     sections = []
     curves = scores.get("per_frame", {})

@@ -3,7 +3,7 @@
 Everything here is NumPy + OpenCV (text) + imageio/ffmpeg + matplotlib (Agg, no display) and
 only writes files; nothing is differentiable. Images are `np.ndarray [H, W, 3|4]` float in
 [0, 1] or uint8; points are `np.ndarray [N, 3]` world, scene units. The HTML page that shows
-them is `sgdr.pipeline.report_html`.
+them is `sgdr.report.html`.
 
 Videos are made to be watched: `playback` slows them to a few frames per second, every
 frame says which side is the ground truth and which the prediction, its number and whether it
@@ -191,7 +191,7 @@ def video_frame(
 # ------------------------------------------------------------------------------ plots
 
 
-def _save_figure(fig, path) -> Path:
+def save_figure(fig, path) -> Path:
     """Lay out, write (creating the folder) and close a matplotlib figure; return its path."""
     import matplotlib.pyplot as plt
 
@@ -203,7 +203,7 @@ def _save_figure(fig, path) -> Path:
     return path
 
 
-def _pyplot():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
@@ -221,7 +221,7 @@ def plot_losses(path, curves: Mapping[str, Sequence[float]], xlabels: Mapping[st
     """One panel per named curve, each against its own step index and x label (`xlabels[name]`,
     default "step"): refine steps, v0 steps and dynamic passes are different things. Log y when
     all of a curve's values are > 0."""
-    plt = _pyplot()
+    plt = pyplot()
     curves = {k: _values(v) for k, v in curves.items() if len(v)}
     if not curves:
         raise ValueError(f"plot_losses {path}: no curve has any value")
@@ -235,13 +235,13 @@ def plot_losses(path, curves: Mapping[str, Sequence[float]], xlabels: Mapping[st
         ax.set_ylabel("loss")
         ax.set_title(name)
         ax.grid(alpha=0.3)
-    return _save_figure(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_stiffness(path, anchors: np.ndarray, log10_k: np.ndarray, k_range: tuple[float, float] | None = None) -> Path:
     """The identified stiffness field: anchors [N_A, 3] (scene units) coloured by log10 k_i [N_A]
     in 3D, and the histogram of log10 k_i with the allowed range `k_range` (the clamp) marked."""
-    plt = _pyplot()
+    plt = pyplot()
     anchors = np.asarray(anchors, float)
     log10_k = np.asarray(log10_k, float).reshape(-1)
     fig = plt.figure(figsize=(11, 4.4))
@@ -267,14 +267,14 @@ def plot_stiffness(path, anchors: np.ndarray, log10_k: np.ndarray, k_range: tupl
         if ax2.get_legend_handles_labels()[0]:
             ax2.legend()
     ax2.set_title(title)
-    return _save_figure(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_search(path, search: dict) -> Path:
     """The global search's landscape: every candidate's rollout loss against each searched
     parameter (one panel each), coloured by CMA-ES generation; the candidates that fit about as
     well as the best (`landscape.equivalent`) ringed. `search`: dynamics.json's "search"."""
-    plt = _pyplot()
+    plt = pyplot()
     names = list(search["names"])
     cand = np.asarray(search["candidates"], float).reshape(-1, len(names))
     loss = _values(search["losses"])
@@ -292,7 +292,7 @@ def plot_search(path, search: dict) -> Path:
         ax.set_yscale("log")
         ax.grid(alpha=0.3)
     fig.colorbar(sc, ax=axes[0][-1], label="generation")
-    return _save_figure(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_metric_curves(path, per_frame: Mapping, n_fit: int) -> Path:
@@ -302,7 +302,7 @@ def plot_metric_curves(path, per_frame: Mapping, n_fit: int) -> Path:
     does not exist) and {"baseline_cd": {variant: [per frame]}}. One panel per score that has
     any value; raises when none has.
     """
-    plt = _pyplot()
+    plt = pyplot()
     panels = []
     baselines = per_frame.get("baseline_cd", {})
     if any(y is not None for y in per_frame.get("cd", [])):
@@ -327,7 +327,7 @@ def plot_metric_curves(path, per_frame: Mapping, n_fit: int) -> Path:
         ax.set_title(title, fontsize=10)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    return _save_figure(fig, path)
+    return save_figure(fig, path)
 
 
 # ------------------------------------------------------------------------------ PLY

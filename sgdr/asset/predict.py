@@ -15,7 +15,7 @@ import drjit as dr
 import numpy as np
 
 from sgdr.arrays import array3_to_points
-from sgdr.identify.common import posed, render_rgba_numpy
+from sgdr.render.images import posed, render_rgba_numpy
 
 
 @dataclass
@@ -29,13 +29,13 @@ class Prediction:
 
 
 def audit_momentum(model, params, ground, gravity, pred: Prediction, dt_frame: float, physics_cfg) -> dict:
-    """How much momentum the springs of `pred`'s rollout added on their own (`sgdr.pipeline.momentum`):
+    """How much momentum the springs of `pred`'s rollout added on their own (`sgdr.asset.momentum`):
     the numbers of `momentum_check`, per unit mass (scene units / s). The directed springs of the
     official model do not conserve momentum, so an identified stiffness field can push the
     object along the ground with nothing external acting; the report warns about it.
     gravity: [3] the rollout's, scene units / s²."""
     from sgdr.arrays import to_numpy
-    from sgdr.pipeline.momentum import internal_impulses, momentum_check
+    from sgdr.asset.momentum import internal_impulses, momentum_check
 
     if pred.velocities is None or not pred.n_substeps:
         raise ValueError("audit_momentum needs the rollout's velocities and substeps (a fresh `predict`)")

@@ -1,4 +1,5 @@
-"""Small shared pieces of the reconstruction stages: targets, posed Gaussians, rendering."""
+"""Rendering Gaussians posed at given centres: `posed`, `render` (Dr.Jit, differentiable) and its
+NumPy-returning forms, `to_tensor` for target images."""
 
 from __future__ import annotations
 
@@ -17,11 +18,6 @@ def to_tensor(img: np.ndarray):
     return t.TensorXf(np.ascontiguousarray(np.asarray(img)[..., :3], dtype=np.float32))
 
 
-def frame_targets(seq, frame: int) -> list:
-    """Ground-truth images of every view of `frame` as TensorXf [H, W, 3]."""
-    return [to_tensor(seq.image(v, frame)) for v in range(len(seq.cameras))]
-
-
 def posed(gaussians, means):
     """The Gaussians with their centres replaced (means: Array3f [M], may carry gradients)."""
     return replace(gaussians, means=means)
@@ -36,15 +32,6 @@ def isotropic_log_scale(gaussians):
 def as_array3(log_scale):
     """Float [M] -> Array3f [M] with three equal entries (isotropic scales)."""
     return ad().Array3f(log_scale, log_scale, log_scale)
-
-
-def raised_ground(seq, margin: float):
-    """The sequence's ground plane moved `margin` scene units along its normal, as a `Ground`:
-    the plane the anchors (interior points) collide with."""
-    from sgdr.physics import Ground
-
-    normal = np.asarray(seq.ground_normal, float) / np.linalg.norm(np.asarray(seq.ground_normal, float))
-    return Ground(np.asarray(seq.ground_point, float) + float(margin) * normal, normal)
 
 
 def render(gaussians, camera, render_cfg):

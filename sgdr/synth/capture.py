@@ -1,4 +1,4 @@
-"""A simulated real capture in the Spring-Gaus layout (`sgdr.realcap.layout`), with its truth.
+"""A simulated real capture in the Spring-Gaus layout (`sgdr.data.capture_layout`), with its truth.
 
 `simulate_real_capture(out_dir, cfg, seed)` makes what a real capture would hold: a static scan
 of the object at rest on a table (photos, masks, a COLMAP model in the scan's own frame), a
@@ -6,11 +6,11 @@ dynamic capture of it dropping onto another table from three calibrated video ca
 masks, clean background plates, checkerboard images, cameras_calib.json), the official-style
 config.yaml, and the truth under gt/ (truth.json, per-frame particles).
 
-Frames (all similarities, `sgdr.realcap.similarity`):
+Frames (all similarities, `sgdr.synth.similarity`):
 - simulation frame U: sgdr's unit cube (z up, scene units), where the object is built, dropped
   by the MPM (`sgdr.synth.generate.simulate_drop`, ground plane z = z_g, gravity
-  -cfg.gravity / cfg.metres_per_unit) and rendered (Mitsuba, `sgdr.realcap.scene`);
-- dynamic frame D (metres): the world checkerboard's frame (`sgdr.realcap.board`), the board
+  -cfg.gravity / cfg.metres_per_unit) and rendered (Mitsuba, `sgdr.synth.capture_scene`);
+- dynamic frame D (metres): the world checkerboard's frame (`sgdr.data.board`), the board
   lying on the table under the drop, z pointing down into the table; X_D = m R_UD (X_U - o_U)
   with m = metres_per_unit, R_UD turning U's z into -z and its x by board_yaw_deg. The ground
   is z = 0 with normal (0, 0, -1), gravity is (0, 0, +cfg.gravity), as in the official real
@@ -67,10 +67,10 @@ import numpy as np
 
 from sgdr.cameras import Camera
 from sgdr.checks import ConfigError
-from sgdr.realcap import layout
-from sgdr.realcap.board import Board, board_image
-from sgdr.realcap.config import RealCaptureSimConfig, rule_problem
-from sgdr.realcap.similarity import Similarity, camera_in, random_rotation
+from sgdr.data import capture_layout as layout
+from sgdr.data.board import Board, board_image
+from sgdr.synth.capture_config import RealCaptureSimConfig, rule_problem
+from sgdr.synth.similarity import Similarity, camera_in, random_rotation
 
 log = logging.getLogger(__name__)
 
@@ -249,9 +249,9 @@ def _write_capture(root: Path, cfg: RealCaptureSimConfig, seed: int, progress: b
     import mitsuba as mi
     from tqdm import tqdm
 
-    from sgdr.realcap.calibrate import Calibration, write_cameras_calib
-    from sgdr.realcap.colmap import ColmapCamera, ColmapImage, rotmat_to_qvec, write_colmap
-    from sgdr.realcap.scene import (
+    from sgdr.data.calibrate import Calibration, write_cameras_calib
+    from sgdr.data.colmap import ColmapCamera, ColmapImage, rotmat_to_qvec, write_colmap
+    from sgdr.synth.capture_scene import (
         build_scene,
         expose,
         mask_scene,
@@ -532,7 +532,7 @@ def _write_config_yaml(path: Path, cfg, obj_name: str, truth: dict, particles_d)
     g = truth["gravity"]
     doc = {"REAL": True, "DATA": data, "VELOCITY": {"G": list(g)}, "DYNAMIC": {"G": list(g)}}
     header = (
-        "# A simulated Spring-Gaus real capture (sgdr.realcap.simulate); DATA_ROOT is this file's folder.\n"
+        "# A simulated Spring-Gaus real capture (sgdr.synth.capture); DATA_ROOT is this file's folder.\n"
         "# REGIST.INIT_* is a rough registration (the official X_d = s R (X_s - mean X_s) + t, R from intrinsic\n"
         "# XYZ Euler degrees); the truth is gt/truth.json.\n"
     )

@@ -1,4 +1,4 @@
-"""Twins of the dynamic-reconstruction baselines: a cube of Gaussians moved by a known motion and
+"""Known-motion cases for the dynamic-reconstruction baselines: a cube of Gaussians moved by a known motion and
 rendered by sgdr's own splatting renderer, so the true centres of every frame are known
 (tests/test_baselines_dynrecon.py, evaluation/baseline_twins.py).
 
@@ -26,7 +26,7 @@ STEP = np.array([0.015, -0.01, -0.02])  # translation per frame, scene units
 
 
 def rigid_motion(centres: np.ndarray, f: int) -> np.ndarray:
-    """[M, 3] centres at frame f of the "rigid" twin."""
+    """[M, 3] centres at frame f of the "rigid" motion."""
     from scipy.spatial.transform import Rotation
 
     axis = np.array([0.3, 0.2, 1.0]) / np.linalg.norm([0.3, 0.2, 1.0])
@@ -34,7 +34,7 @@ def rigid_motion(centres: np.ndarray, f: int) -> np.ndarray:
 
 
 def twist_motion(centres: np.ndarray, f: int) -> np.ndarray:
-    """[M, 3] centres at frame f of the "twist" twin."""
+    """[M, 3] centres at frame f of the "twist" motion."""
     p = centres - CENTRE
     th = np.deg2rad(10.0 * f) * p[:, 2] / HALF_SIDE
     x, y = np.cos(th) * p[:, 0] - np.sin(th) * p[:, 1], np.sin(th) * p[:, 0] + np.cos(th) * p[:, 1]
@@ -45,7 +45,7 @@ MOTIONS = {"rigid": rigid_motion, "twist": twist_motion}
 
 
 @dataclass
-class Twin:
+class KnownMotion:
     gaussians: object  # Gaussians at frame 0 (M)
     cameras: list  # 4 Camera, 32 x 32
     render_cfg: object  # RenderConfig (defaults)
@@ -59,13 +59,13 @@ class Twin:
         return err[1:] / motion[1:]
 
 
-def cube_twin(motion: str, n_gaussians: int = 250, n_frames: int = 4, seed: int = 0) -> Twin:
+def known_motion_cube(motion: str, n_gaussians: int = 250, n_frames: int = 4, seed: int = 0) -> KnownMotion:
     """The cube moved by MOTIONS[motion] over `n_frames` frames, rendered from 4 views."""
     from sgdr.arrays import points_to_array3
     from sgdr.cameras import Camera
     from sgdr.gaussians.model import Gaussians
-    from sgdr.identify.common import posed, render_rgb_numpy, to_tensor
     from sgdr.render.config import RenderConfig
+    from sgdr.render.images import posed, render_rgb_numpy, to_tensor
 
     rng = np.random.default_rng(seed)
     centres = rng.uniform(-HALF_SIDE, HALF_SIDE, (n_gaussians, 3)) + CENTRE
@@ -81,4 +81,4 @@ def cube_twin(motion: str, n_gaussians: int = 250, n_frames: int = 4, seed: int 
         [to_tensor(render_rgb_numpy(posed(g, points_to_array3(truth[f])), c, rcfg)) for c in cams]
         for f in range(n_frames)
     ]
-    return Twin(g, cams, rcfg, truth, targets)
+    return KnownMotion(g, cams, rcfg, truth, targets)

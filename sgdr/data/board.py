@@ -11,7 +11,7 @@ corner (cols-1, rows-1) is white, which tells the board's two 180°-rotated read
 `board_image` draws what a pinhole camera sees of the board (no distortion): every pixel is
 supersampled s x s, each sample's ray is cut with the board's plane z = 0, and the sample
 takes the colour of the square, the margin or the background it lands on. It is the
-simulated capture's "photo" of the board (`sgdr.realcap.simulate`).
+simulated capture's "photo" of the board (`sgdr.synth.capture`).
 """
 
 from __future__ import annotations

@@ -62,7 +62,7 @@ class RealCaptureSimConfig:
     init_rot_deg: float = 12.0  # rotation error of INIT_R, degrees (random axis)
     init_scale_err: float = 0.1  # relative error of INIT_S (random sign)
     init_trans_err: float = 0.1  # error of INIT_T, fraction of the object's size (random direction)
-    # --- checkerboards (drawn analytically, sgdr.realcap.board)
+    # --- checkerboards (drawn analytically, sgdr.data.board)
     board_pattern: list = field(default_factory=lambda: [6, 5])  # inner corners (cols, rows); cols + rows odd
     board_square: float = 0.02  # square side, metres
     board_views: int = 20  # images per camera, the first of the world board on the table

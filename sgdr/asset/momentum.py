@@ -35,7 +35,7 @@ def internal_impulses(model, params, ground, n_frames: int, dt_frame: float, n_s
     from sgdr.arrays import array3_to_points
     from sgdr.backend import ad
     from sgdr.physics import SimState
-    from sgdr.physics.simulate import SPRINGS, _contact_consts, _frame_constants, euler_contact, plastic_rest_lengths
+    from sgdr.physics.simulate import SPRINGS, contact_consts, euler_contact, frame_constants, plastic_rest_lengths
 
     t = ad()
     springs = SPRINGS.get_named(cfg.springs, "physics.springs")
@@ -44,7 +44,7 @@ def internal_impulses(model, params, ground, n_frames: int, dt_frame: float, n_s
     with dr.suspend_grad():
         p = params.detach()
         dr.eval(p.kappa, p.v0, p.friction, p.restitution, p.zeta0, p.gravity)
-        c = _frame_constants(model, p, ground, cfg)
+        c = frame_constants(model, p, ground, cfg)
         state = SimState.at_rest(model, p.v0)
         x, v, rest = state.x, state.v, None
         for _ in range(1, int(n_frames)):
@@ -52,7 +52,7 @@ def internal_impulses(model, params, ground, n_frames: int, dt_frame: float, n_s
             for _ in range(int(n_substeps)):
                 f = springs(model, x, v, c["k"], c["sp"], p.zeta0, cfg, rest=rest)
                 total = total + f * dt
-                x, v = euler_contact(x, v, f, p.gravity, p.friction, p.restitution, _contact_consts(c), dt, cfg)
+                x, v = euler_contact(x, v, f, p.gravity, p.friction, p.restitution, contact_consts(c), dt, cfg)
                 rest = plastic_rest_lengths(model, x, rest, cfg)
                 dr.eval(x, v, total, *(() if rest is None else (rest,)))
             out.append(out[-1] + array3_to_points(total).sum(0))

@@ -1,5 +1,5 @@
 """Whether a run's result is any good, in words: the verdict, the warnings and the parameter table
-that open `report.html` (`sgdr.pipeline.report_html`). Pure functions of the run's values (the
+that open `report.html` (`sgdr.report.html`). Pure functions of the run's values (the
 evaluate stage's scores, the dynamics and velocity stages' values, the config); no files.
 
 Verdict rules (also in docs/report.md):
@@ -32,7 +32,7 @@ Warnings:
   end of its search range;
 - springs that should conserve momentum (physics.springs=symmetric) pushing the predicted
   centre of mass by more than `recon.momentum_tolerance` (scene units / s; the predict stage's
-  momentum audit, `sgdr.pipeline.momentum`): a bug. The official directed springs never conserve
+  momentum audit, `sgdr.asset.momentum`): a bug. The official directed springs never conserve
   momentum; how much they add is stated under the parameters (`momentum_note`), not warned
   about: on the small torus they add 2-3 scene units/s along the ground and 19-27 into it in
   good and bad runs alike, and the ground contact absorbs most of it.
@@ -223,7 +223,7 @@ def _loss_warnings(dyn: dict) -> list[str]:
     return out
 
 
-def _baseline_warnings(scores: dict) -> list[str]:
+def baseline_warnings(scores: dict) -> list[str]:
     cd = _finite(scores.get("future_cd"))
     if cd is None:
         return []
@@ -275,10 +275,10 @@ def momentum_note(momentum: dict) -> str:
 
 def judge(scores: dict, dyn: dict, recon_cfg, physics_cfg, momentum: dict | None = None) -> Verdict:
     """The verdict and warnings of one run (the rules in the module docstring); momentum: the
-    predict stage's momentum audit (`sgdr.pipeline.predict.audit_momentum`), if made."""
+    predict stage's momentum audit (`sgdr.asset.predict.audit_momentum`), if made."""
     fit, fit_text = fit_verdict(scores)
     future, future_head, future_text = future_verdict(scores)
-    warnings = _bound_warnings(dyn, recon_cfg, physics_cfg) + _loss_warnings(dyn) + _baseline_warnings(scores)
+    warnings = _bound_warnings(dyn, recon_cfg, physics_cfg) + _loss_warnings(dyn) + baseline_warnings(scores)
     warnings += _momentum_warnings(momentum, recon_cfg) + _search_warnings(dyn)
     return Verdict(fit, future, f"Fit {fit}, {future_head}.", [fit_text, *future_text], warnings)
 

@@ -1,10 +1,10 @@
-"""Slow, dense NumPy twin of `sgdr.render.splat` (float64; used only by tests).
+"""Slow, dense NumPy reference of `sgdr.render.splat` (float64; used only by tests).
 
 Same projection, footprint radius, tile membership (bounding square, then the disc test), depth order, alpha cutoffs, α clamp and
 early termination as the Dr.Jit renderer, written as plainly as possible: Gaussians are
 visited one at a time in front-to-back order and composited into every pixel of every tile
-their footprint rectangle overlaps (vectorised over pixels only). Gradients of the twin are
-taken by central finite differences (`twin_vjp`).
+their footprint rectangle overlaps (vectorised over pixels only). Gradients of the reference are
+taken by central finite differences (`reference_vjp`).
 """
 
 from __future__ import annotations
@@ -127,7 +127,7 @@ def render_numpy(p: dict, camera: Camera, cfg: RenderConfig) -> tuple[np.ndarray
 FIELDS = ("means", "log_scales", "rotations", "color_logits", "opacity_logits")
 
 
-def twin_vjp(p: dict, camera: Camera, cfg: RenderConfig, w_rgb: np.ndarray, w_alpha: np.ndarray, eps=1e-5) -> dict:
+def reference_vjp(p: dict, camera: Camera, cfg: RenderConfig, w_rgb: np.ndarray, w_alpha: np.ndarray, eps=1e-5) -> dict:
     """Gradient of L = <w_rgb, rgb> + <w_alpha, alpha> w.r.t. every entry of every field of
     `p`, by central finite differences of `render_numpy` (float64). Returns arrays shaped
     like the fields."""

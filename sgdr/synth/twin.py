@@ -27,6 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
+from sgdr.observe.contact import hit_frame
+from sgdr.observe.images import upscaled
+
 
 def twin_values(asset, truth: dict) -> dict:
     """The asset's parameter values with `truth` applied (see the module docstring): the same
@@ -40,36 +43,6 @@ def twin_values(asset, truth: dict) -> dict:
     if not 0.0 <= float(values["restitution"]) <= 1.0:
         raise ValueError(f"twin truth: restitution {values['restitution']} outside [0, 1]")
     return values
-
-
-def touching(anchors: np.ndarray, ground_point, ground_normal, tol: float | None = None) -> np.ndarray:
-    """[T] bool: frames in which the lowest of `anchors` [T, N, 3] is within `tol` of the ground
-    plane (default: 1e-3 of the object's extent at frame 0)."""
-    n = np.asarray(ground_normal, float) / np.linalg.norm(ground_normal)
-    heights = (np.asarray(anchors, float) - np.asarray(ground_point, float)) @ n  # [T, N]
-    tol = 1e-3 * float(np.ptp(anchors[0], axis=0).max()) if tol is None else float(tol)
-    return heights.min(axis=1) <= tol
-
-
-def hit_frame(anchors: np.ndarray, ground_point, ground_normal, tol: float | None = None) -> int:
-    """The first frame in which the lowest anchor touches the ground plane (`touching`); frames
-    before it are free fall. 1 when it starts in contact."""
-    frames = np.flatnonzero(touching(anchors, ground_point, ground_normal, tol))
-    return int(max(frames[0], 1)) if frames.size else int(anchors.shape[0] - 1)
-
-
-def upscaled(camera, s: int):
-    """The camera whose pixels are s x s sub-pixels of `camera`'s (intrinsics x s, size x s): the
-    same view, rendered s times finer (the inverse of `sgdr.discrepancy.measures.downscaled`)."""
-    from sgdr.cameras import Camera
-
-    if s < 1:
-        raise ValueError(f"image_scale={s}: must be a positive integer")
-    if s == 1:
-        return camera
-    K = np.array(camera.K, float)
-    K[:2] *= s
-    return Camera(K, camera.R, camera.t, camera.width * s, camera.height * s, camera.name)
 
 
 def twin_sequence(
@@ -93,10 +66,10 @@ def twin_sequence(
     asset's cameras (`upscaled`; a likelihood that sees more, e.g. a tiny asset's calibration)."""
     from dataclasses import replace
 
+    from sgdr.asset.predict import physical_params, predict
+    from sgdr.asset.store import load_asset
     from sgdr.data import write_sequence
     from sgdr.physics import Ground
-    from sgdr.pipeline.asset import load_asset
-    from sgdr.pipeline.predict import physical_params, predict
     from sgdr.render.config import RenderConfig
 
     asset = load_asset(asset_dir)

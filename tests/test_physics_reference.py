@@ -1,6 +1,6 @@
-"""The Dr.Jit simulator against its float64 NumPy twin (sgdr/physics/reference.py): forward
+"""The Dr.Jit simulator against its float64 NumPy reference (sgdr/physics/reference.py): forward
 equality for every variant combination, and gradients of a rollout loss against central finite
-differences of the twin, in both gradient modes."""
+differences of the reference, in both gradient modes."""
 
 import drjit as dr
 import numpy as np
@@ -16,7 +16,7 @@ def _blob(n=40, seed=3):
 
 
 @pytest.mark.parametrize("law,springs,stiffness,contact,normalised", all_variants(), ids=variant_ids())
-def test_rollout_matches_numpy_twin(law, springs, stiffness, contact, normalised):
+def test_rollout_matches_numpy_reference(law, springs, stiffness, contact, normalised):
     """200 substeps (2 frames x 100) of a strained, moving blob hitting a tilted ground."""
     rng = np.random.default_rng(7)
     x_rest = _blob()
@@ -70,7 +70,7 @@ def test_rollout_matches_numpy_twin(law, springs, stiffness, contact, normalised
 
 
 # --------------------------------------------------------------------------------------------
-# Gradients vs central finite differences of the float64 twin
+# Gradients vs central finite differences of the float64 reference
 # --------------------------------------------------------------------------------------------
 N_FRAMES, N_SUB, DT = 3, 20, 1 / 30
 PARAM_NAMES = ["log10_k", "kappa", "v0", "friction", "restitution", "zeta0", "gravity"]
@@ -115,8 +115,8 @@ def _perturbed(p: dict, name: str, h: float, direction) -> dict:
     return q
 
 
-def _twin_fd(m, p, ground, weights, cfg, name, direction, mode, h=1e-6):
-    """Directional derivative of the loss by central differences of the twin (float64)."""
+def _reference_fd(m, p, ground, weights, cfg, name, direction, mode, h=1e-6):
+    """Directional derivative of the loss by central differences of the reference (float64)."""
 
     def loss_full(q):
         return sum(
@@ -172,7 +172,7 @@ def test_gradients_match_finite_differences(law, springs, stiffness, contact, mo
     unused = []
     for name in PARAM_NAMES:
         d = directions[name]
-        fd = _twin_fd(m, p, ground, weights, cfg, name, d, mode)
+        fd = _reference_fd(m, p, ground, weights, cfg, name, d, mode)
         ad = float(np.sum(grads[name] * d)) if np.ndim(d) else float(grads[name][0]) * d
         if fd == 0.0:  # a parameter this variant never reads (the official contact ignores e)
             assert ad == 0.0, (name, ad)
@@ -187,7 +187,7 @@ def test_gradients_match_finite_differences(law, springs, stiffness, contact, mo
 # the printed (unnormalised) form cuts every spring past n_c at κ >= 0, so it is checked at κ < 0
 @pytest.mark.parametrize("kappa,normalised", [(0.0, True), (-1.0, True), (0.7, True), (-1.0, False), (-2.5, False)])
 def test_soft_vector_and_its_kappa_gradient(kappa, normalised):
-    """η_j (Eq. 15) against the twin, and dη/dκ against central differences, at the default κ = 0
+    """η_j (Eq. 15) against the reference, and dη/dκ against central differences, at the default κ = 0
     too (a max/abs softplus has a zero derivative there)."""
     from sgdr.backend import ad
     from sgdr.physics.laws import soft_vector_eta, soft_vector_exponent, softplus

@@ -6,7 +6,7 @@ carved from the scan's masks, so the constant scale s0 and the learning rates (s
 mean the same as on the benchmark; the Gaussians are fitted there (`sgdr.static_fit.fit_static`)
 and mapped back (centres X = X_n / k + o, log scales - log k).
 
-`register_scan`: `sgdr.realcap.register.register` on the dynamic sequence's frame 0 masks (and
+`register_scan`: `sgdr.static_fit.register.register` on the dynamic sequence's frame 0 masks (and
 the video frame's colours when the capture has them), from
 the config's initial registration (DATA.REGIST: INIT_R Euler XYZ degrees, INIT_T, INIT_S);
 returns the Gaussians in the dynamic frame and the `Registration`.
@@ -46,7 +46,7 @@ def fit_scan(static_seq, cfg, render_cfg, seed: int = 0, progress: bool = False)
 def register_scan(gaussians, seq, cfg, render_cfg, seed: int = 0, progress: bool = False):
     """(Gaussians in the dynamic frame, Registration) from the scan's Gaussians and `seq`'s frame 0."""
     from sgdr.data.sequence import SequenceError
-    from sgdr.realcap.register import RegisterConfig, euler_xyz_deg, register
+    from sgdr.static_fit.register import RegisterConfig, euler_xyz_deg, register
 
     init = seq.extras.get("registration_init") or {}
     if not init.get("given"):

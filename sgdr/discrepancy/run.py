@@ -28,25 +28,23 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from sgdr.discrepancy.candidates import CANDIDATES, Context, Evaluator, fit_candidate
+from sgdr.discrepancy.decision import decide, excess_gain, rivals, settle_mimics, threshold
+from sgdr.discrepancy.measures import MEASURES
+from sgdr.discrepancy.report import section
+from sgdr.discrepancy.residuals import summary
+from sgdr.discrepancy.truth import scene_of, truth_values
+from sgdr.evaluate.score import strict_json
+from sgdr.posterior.rollouts import ROLLOUTS
+from sgdr.report.html import add_section
+from sgdr.run_folder import run_asset_and_sequence, run_sequence
+
 log = logging.getLogger(__name__)
-
-
-def excess_gain(d: float, d_base: float, floor: float | None, margin: float = 0.05) -> float:
-    """(d_base - d) / room with room = d_base - floor: the share of the base's discrepancy above
-    the floor that a candidate removes, 1 - (d - floor) / (d_base - floor). The room is at least
-    `margin` x floor (`diagnose.floor_margin`): a base already at its floor (a twin of the asset
-    itself) leaves nothing to explain, and a tiny, chance improvement there must not read as a
-    large share of nothing."""
-    if not np.isfinite(d):
-        return -float("inf")
-    floor = 0.0 if floor is None else float(floor)
-    room = max(float(d_base) - floor, float(margin) * floor, 1e-12 * abs(float(d_base)), 1e-300)
-    return (float(d_base) - float(d)) / room
 
 
 def frame0_floor(measure, seq, views, n_frames: int, dc, seed, score, positions) -> float:
@@ -57,76 +55,6 @@ def frame0_floor(measure, seq, views, n_frames: int, dc, seed, score, positions)
     return float(n_frames * np.sum(score(zero, positions)))
 
 
-def threshold(dc, name: str) -> float:
-    """The held-out gain candidate `name` needs to be named: `diagnose.min_gain_by_candidate[name]`,
-    else `diagnose.min_gain`."""
-    return float((dc.min_gain_by_candidate or {}).get(name, dc.min_gain))
-
-
-def _choice_pool(gains: dict, thresholds: dict, first=()) -> list[str]:
-    """The candidates a cause is chosen from: those at or above their own threshold, and of those
-    only the ones in `first` (the free-flight candidates) when any of them passes."""
-    passing = [n for n, g in gains.items() if g is not None and np.isfinite(g) and g >= thresholds[n]]
-    first = set(first)
-    early = [n for n in passing if n in first]
-    return early or passing
-
-
-def decide(gains: dict, thresholds: dict, first=()) -> str | None:
-    """The candidate named: the largest gain among those at or above their own threshold (None:
-    no candidate passes, the cause is "none"). Candidates in `first` (the free-flight ones) come
-    first: when one of them passes, the largest of those is named. What changes the fall changes
-    the contact after it, so a contact-borne candidate may fit its consequence over the whole
-    window (the MPM apple with drag 2 /s: a ground raised 5% of its size gained 0.51, drag 0.42 in
-    free flight); nothing that acts at contact changes the free flight."""
-    pool = _choice_pool(gains, thresholds, first)
-    return max(pool, key=lambda n: gains[n]) if pool else None
-
-
-def rivals(gains: dict, thresholds: dict, best: str | None, causes: dict, margin: float, first=()) -> list[str]:
-    """The candidates of another cause that explain the data about as well as `best`: among those
-    `decide` chose from (the passing free-flight ones when one passes, else all passing), those
-    whose gain is within `margin` (`diagnose.mimic_margin`) of the best's. Weaker gravity and air
-    drag both slow a fall and fit its few free-flight frames alike (the MPM suite: their gains
-    differed by 0.009-0.025 in all five cases where both passed, and the larger one was wrong once),
-    so the named cause is then a coin flip the report must not hide."""
-    if best is None:
-        return []
-    return sorted(
-        (
-            n
-            for n in _choice_pool(gains, thresholds, first)
-            if causes[n] != causes[best] and gains[best] - gains[n] < float(margin)
-        ),
-        key=lambda n: -gains[n],
-    )
-
-
-def settle_mimics(
-    best: str | None, rival: list[str], window_gains: dict, margin: float, thresholds: dict
-) -> tuple[str | None, list[str]]:
-    """The named candidate and its rivals after the whole fit window has had its say: when the
-    named one and every rival are free-flight candidates with a `fit_window_gain` (each one's
-    held-out gain over the whole fit window with its free-flight value), and one of them both
-    explains the whole window (its window gain at least its own threshold) and beats every other
-    there by at least `margin` (`diagnose.mimic_window_margin`), that one is named and the
-    ambiguity is settled; else nothing changes. Weaker gravity and air drag fit a few frames of
-    fall alike but part ways after a bounce: drag slows the rise more than the fall, a weaker
-    gravity slows both alike (the tiny drag twin: drag 0.933, gravity 0.737). On MPM data the
-    contact misfit can make both window gains negative; the one that hurts less is then no
-    evidence (the MPM torus with drag 2 /s: gravity -0.64, drag -1.74), hence the threshold."""
-    if best is None or not rival:
-        return best, rival
-    group = [best, *rival]
-    w = {n: window_gains.get(n) for n in group}
-    if any(v is None or not np.isfinite(v) for v in w.values()):
-        return best, rival
-    top = max(group, key=lambda n: w[n])
-    if w[top] >= thresholds[top] and all(w[top] - w[n] >= float(margin) for n in group if n != top):
-        return top, []
-    return best, rival
-
-
 def _same_sequence(a, b) -> bool:
     try:
         return Path(a).resolve() == Path(b).resolve()
@@ -134,17 +62,35 @@ def _same_sequence(a, b) -> bool:
         return False
 
 
-def run_diagnosis(cfg) -> dict:
-    from sgdr.discrepancy.candidates import CANDIDATES, Context, Evaluator, fit_candidate
-    from sgdr.discrepancy.measures import MEASURES
-    from sgdr.discrepancy.residuals import summary
-    from sgdr.discrepancy.truth import scene_of, truth_values
-    from sgdr.evaluate.score import strict_json
-    from sgdr.posterior.rollouts import ROLLOUTS
-    from sgdr.run_folder import run_asset_and_sequence, run_sequence
+@dataclass
+class Observed:
+    """What the diagnosis compares with: the run's asset and sequence, the views and frames each
+    part of the judgement uses, the measure's observations of them and the evaluator that scores
+    a setting of the model on them."""
 
+    run_dir: Path
+    asset_dir: Path
+    asset: object
+    seq_dir: Path
+    seq: object
+    views: list
+    fit_views: list
+    held_views: list
+    fit_frames: np.ndarray
+    future: np.ndarray
+    measure: object
+    obs_fit: object
+    obs_held: object
+    obs_future: object
+    score: object
+    ev: Evaluator
+
+
+def observe_run(cfg) -> Observed:
+    """Step 1-2: the run's asset and sequence, the fitting views (even positions), the held-out
+    views (odd positions), the fit frames after frame 0 and the future frames, each observed by
+    `diagnose.discrepancy`'s measure."""
     dc = cfg.diagnose
-    t0 = time.time()
     run_dir = Path(dc.run)
     asset_dir, asset, seq_dir, seq = run_asset_and_sequence(run_dir, dc.sequence, cfg.scene_file, "diagnose")
     if len(seq.cameras) < 2:
@@ -161,61 +107,81 @@ def run_diagnosis(cfg) -> dict:
     obs_future = measure.observe(seq, views, future, dc, cfg.seed) if future.size else None
     score = measure.scorer(asset, dc, cfg.render, cfg.seed)
     ev = Evaluator(asset, ROLLOUTS.get_named(dc.rollout, "diagnose.rollout"), obs_fit, obs_held, obs_future, score)
-    size = float(np.linalg.norm(np.ptp(np.asarray(asset.anchors, float), axis=0)))
-    base = {"d_fit": ev.d({}, obs_fit), "d_held_out": ev.d({}, obs_held)}
-    base["d_future"] = ev.d({}, obs_future) if obs_future is not None else None
-    if not np.isfinite(base["d_held_out"]):
-        raise RuntimeError(f"{asset_dir}: the identified parameters' rollout is unstable")
-    # the floor: frame 0's D (the rest state, which no extension changes) in each view, once per
-    # frame of the observation: what the asset's appearance leaves that no dynamics can remove
-    floor = {}
-    for key, vs, n in (("held_out", held_views, fit_frames.size), ("future", views, future.size)):
-        floor[key] = frame0_floor(measure, seq, vs, n, dc, cfg.seed, score, ev.positions({})) if n else None
-    base["floor_held_out"], base["floor_future"] = floor["held_out"], floor["future"]
-    # v0 is refitted with gravity and drag only on the sequence the run fitted it to (its
-    # pre-hit frames under the base model); another sequence (a twin) keeps the asset's v0
-    own = _same_sequence(seq_dir, run_sequence(run_dir))
-    ctx = Context(
-        values=asset.values,
-        physics=asset.physics,
-        anchors=np.asarray(asset.anchors, float),
-        size=size,
-        free_fall_times=np.arange(1, max(int(seq.hit_frame), 1)) / float(asset.fps) if own else np.zeros(0),
-    )
-    margin = float(dc.floor_margin)
-    asset_fit = dict(base)  # the asset's own fit, before any refit
-    rebase = refit_controls(ev, ctx, dc, dc.evaluations) if dc.rebase else None
-    refit_values = rebase.pop("replacements") if rebase is not None else {}
-    if rebase is not None:
-        # a second sweep of the controls, with the budget each candidate's joint refit gets: a
-        # candidate at its null value plus that sweep must not beat the base by the sweep alone
-        # (on a tiny twin 10^0.5 stiffer a null stiffness ratio "gained" 0.42 that way)
-        second = refit_controls(ev, ctx, dc, max(4, int(dc.evaluations) // 2), None, refit_values)
-        rebase["second_sweep"] = second["steps"]
-        if second["d_fit"] < rebase["d_fit"]:
-            refit_values = {**refit_values, **second["replacements"]}
-            rebase.update({k: second[k] for k in ("d_fit", "d_held_out", "d_future")})
-        rebase["held_out_gain"] = excess_gain(rebase["d_held_out"], base["d_held_out"], floor["held_out"], margin)
-        rebase["future_gain"] = (
-            excess_gain(rebase["d_future"], base["d_future"], floor["future"], margin)
-            if rebase["d_future"] is not None
-            else None
-        )
-        base = {**base, **{k: rebase[k] for k in ("d_fit", "d_held_out", "d_future")}}
-        log.info(
-            "diagnose: base refit %s, held-out gain %.3f over the asset's fit",
-            {n: st["values"] for n, st in rebase["steps"].items()}, rebase["held_out_gain"],
-        )  # fmt: skip
-    # Each candidate is fitted from the run's own fit (where a twin's effect is alone: the refit's
-    # controls may have absorbed part of it, e.g. a tiny twin's ground offset 0.05 sizes fitted
-    # 0.0099 for 0.029 from the refit), then the controls are refitted beside it. When that ends
-    # above the refit base on the fitting views, the search lost its way from a fit the refit had
-    # moved far from (the MPM torus with gravity x0.85: gravity x1.24, held-out D twice the
-    # base's); the candidate is then fitted again from the refit base, the better fit kept.
-    asset_state = (dict(ev.values), dict(ev.settings), ctx.values)
-    refit_state = ({**ev.values, **refit_values}, dict(ev.settings), {**ctx.values, **refit_values})
-    flight = free_flight(seq, asset, measure, dc, cfg.seed, fit_views, held_views, fit_frames, score, refit_values)
+    return Observed(run_dir, asset_dir, asset, seq_dir, seq, views, fit_views, held_views, fit_frames, future,
+                    measure, obs_fit, obs_held, obs_future, score, ev)  # fmt: skip
 
+
+def base_and_floor(o: Observed, dc, seed) -> tuple[dict, dict]:
+    """The base model's D on the fitting, held-out and future observations, and the floor of each
+    gain: frame 0's D (the rest state, which no extension changes) in the same views, once per
+    frame of the observation: what the asset's appearance leaves that no dynamics can remove."""
+    ev = o.ev
+    base = {"d_fit": ev.d({}, o.obs_fit), "d_held_out": ev.d({}, o.obs_held)}
+    base["d_future"] = ev.d({}, o.obs_future) if o.obs_future is not None else None
+    if not np.isfinite(base["d_held_out"]):
+        raise RuntimeError(f"{o.asset_dir}: the identified parameters' rollout is unstable")
+    floor = {}
+    for key, vs, n in (("held_out", o.held_views, o.fit_frames.size), ("future", o.views, o.future.size)):
+        floor[key] = frame0_floor(o.measure, o.seq, vs, n, dc, seed, o.score, ev.positions({})) if n else None
+    base["floor_held_out"], base["floor_future"] = floor["held_out"], floor["future"]
+    return base, floor
+
+
+def candidate_context(o: Observed) -> tuple[Context, bool]:
+    """The candidates' context and whether the sequence is the run's own. v0 is refitted with
+    gravity and drag only on the sequence the run fitted it to (its pre-hit frames under the base
+    model); another sequence (a twin) keeps the asset's v0."""
+    own = _same_sequence(o.seq_dir, run_sequence(o.run_dir))
+    ctx = Context(
+        values=o.asset.values,
+        physics=o.asset.physics,
+        anchors=np.asarray(o.asset.anchors, float),
+        size=float(np.linalg.norm(np.ptp(np.asarray(o.asset.anchors, float), axis=0))),
+        free_fall_times=np.arange(1, max(int(o.seq.hit_frame), 1)) / float(o.asset.fps) if own else np.zeros(0),
+    )
+    return ctx, own
+
+
+def refit_base(ev, ctx, dc, base: dict, floor: dict) -> tuple[dict | None, dict, dict]:
+    """Step 3a (`diagnose.rebase`): the base's own parameters refitted (`refit_controls`), twice.
+    The second sweep has the budget each candidate's joint refit gets: a candidate at its null
+    value plus that sweep must not beat the base by the sweep alone (on a tiny twin 10^0.5 stiffer
+    a null stiffness ratio "gained" 0.42 that way). Returns (the refit's record or None, the
+    replaced values, the base after the refit)."""
+    if not dc.rebase:
+        return None, {}, base
+    margin = float(dc.floor_margin)
+    rebase = refit_controls(ev, ctx, dc, dc.evaluations)
+    refit_values = rebase.pop("replacements")
+    second = refit_controls(ev, ctx, dc, max(4, int(dc.evaluations) // 2), None, refit_values)
+    rebase["second_sweep"] = second["steps"]
+    if second["d_fit"] < rebase["d_fit"]:
+        refit_values = {**refit_values, **second["replacements"]}
+        rebase.update({k: second[k] for k in ("d_fit", "d_held_out", "d_future")})
+    rebase["held_out_gain"] = excess_gain(rebase["d_held_out"], base["d_held_out"], floor["held_out"], margin)
+    rebase["future_gain"] = (
+        excess_gain(rebase["d_future"], base["d_future"], floor["future"], margin)
+        if rebase["d_future"] is not None
+        else None
+    )
+    base = {**base, **{k: rebase[k] for k in ("d_fit", "d_held_out", "d_future")}}
+    log.info(
+        "diagnose: base refit %s, held-out gain %.3f over the asset's fit",
+        {n: st["values"] for n, st in rebase["steps"].items()}, rebase["held_out_gain"],
+    )  # fmt: skip
+    return rebase, refit_values, base
+
+
+def fit_candidates(ev, ctx, dc, base, floor, asset_fit, rebase, asset_state, refit_state, flight) -> dict:
+    """Step 3b: every candidate of `diagnose.candidates` fitted and judged on the held-out views
+    (the free-flight ones on the free-flight window when there is one). Each candidate is fitted
+    from the run's own fit (where a twin's effect is alone: the refit's controls may have absorbed
+    part of it, e.g. a tiny twin's ground offset 0.05 sizes fitted 0.0099 for 0.029 from the
+    refit), then the controls are refitted beside it. When that ends above the refit base on the
+    fitting views, the search lost its way from a fit the refit had moved far from (the MPM torus
+    with gravity x0.85: gravity x1.24, held-out D twice the base's); the candidate is then fitted
+    again from the refit base, the better fit kept."""
+    margin = float(dc.floor_margin)
     candidates = {}
 
     def fitted(cand, start: str):
@@ -263,16 +229,29 @@ def run_diagnosis(cfg) -> dict:
         )
         candidates[name]["from"] = start
         log.info("diagnose: %s = %s, held-out gain %.3f", name, fit.values, candidates[name]["gain"])
-    truth = seq.gt_effects() if dc.truth and seq.gt_dir is not None else None
-    if truth and truth.get("active"):
-        scene = scene_of(seq, asset)
-        for name, rec in candidates.items():
-            at = truth_values(name, truth, scene)
-            if at is not None:
-                cand = CANDIDATES.get_named(name, "diagnose.candidates")
-                where = flight if rec["window"] == "free_flight" else None
-                rec["truth"] = judge_truth(cand, at, where, ev, refit_state, ctx, base, floor, dc)
-                log.info("diagnose: %s at the truth %s, held-out gain %.3f", name, at[0], rec["truth"]["gain"])
+    return candidates
+
+
+def judge_at_truth(candidates: dict, o: Observed, ev, refit_state, ctx, base, floor, dc, flight) -> None:
+    """With `diagnose.truth` and a sequence that records injected effects: each candidate also
+    judged at the injected values (its record's "truth")."""
+    truth = o.seq.gt_effects() if dc.truth and o.seq.gt_dir is not None else None
+    if not (truth and truth.get("active")):
+        return
+    scene = scene_of(o.seq, o.asset)
+    for name, rec in candidates.items():
+        at = truth_values(name, truth, scene)
+        if at is not None:
+            cand = CANDIDATES.get_named(name, "diagnose.candidates")
+            where = flight if rec["window"] == "free_flight" else None
+            rec["truth"] = judge_truth(cand, at, where, ev, refit_state, ctx, base, floor, dc)
+            log.info("diagnose: %s at the truth %s, held-out gain %.3f", name, at[0], rec["truth"]["gain"])
+
+
+def name_cause(candidates: dict, dc) -> tuple[str | None, list[str], list[str]]:
+    """Step 4 (`sgdr.discrepancy.decision`): the named candidate, its rivals (other causes that fit
+    as well) and the free-flight mimics a tie was settled between (else []); each candidate's
+    record gets its threshold and its decision."""
     thresholds = {n: threshold(dc, n) for n in candidates}
     free = [n for n, c in candidates.items() if c["window"] == "free_flight"]
     gains = {n: c["gain"] for n, c in candidates.items()}
@@ -285,6 +264,54 @@ def run_diagnosis(cfg) -> dict:
     for name, c in candidates.items():
         c["min_gain"] = thresholds[name]
         c["decision"] = "cause" if name == best else "as good" if name in rival else "rejected"
+    return best, rival, (tie if tie and not rival else [])
+
+
+def write_outputs(record: dict, o: Observed, dc, rebase, refit_values, asset_state, ctx, t0: float) -> dict:
+    """Step 5 and the files: the refit asset when the refit carries to the held-out views
+    (`diagnose.refit_min_gain`), the residual diagnostics of the run's own fit, diagnosis.json
+    and the report's section."""
+    out = Path(dc.out_dir) if dc.out_dir else o.run_dir / "diagnose"
+    out.mkdir(parents=True, exist_ok=True)
+    if refit_values and rebase["held_out_gain"] >= float(dc.refit_min_gain):
+        record["refit_asset"] = str(write_refit_asset(o.asset, refit_values, out / "asset_refit", rebase))
+        log.info("diagnose: the refit asset -> %s", record["refit_asset"])
+    residuals, plots = None, None
+    o.ev.reset(asset_state[0], asset_state[1])  # the residuals are the run's own fit's
+    ctx.values = asset_state[2]
+    if dc.residuals:
+        parts = [(o.fit_views, o.obs_fit), (o.held_views, o.obs_held), (o.views, o.obs_future)]
+        residuals, plots = write_residuals(o.ev, parts, o.seq, o.asset, dc, out, o.measure.unit)
+        record["residuals"] = summary(residuals)
+    record["seconds"] = time.time() - t0
+    record = strict_json(record)
+    (out / "diagnosis.json").write_text(json.dumps(record, indent=1, allow_nan=False))
+    record["file"] = str(out / "diagnosis.json")
+    report = o.run_dir / "report" / "report.html"
+    if report.exists():
+        add_section(report, section(record, residuals, plots))
+        record["report"] = str(report)
+    else:
+        log.info("diagnose: %s missing, no report section added", report)
+    return record
+
+
+def run_diagnosis(cfg) -> dict:
+    """The steps of the module's docstring; returns the record written to diagnosis.json."""
+    dc = cfg.diagnose
+    t0 = time.time()
+    o = observe_run(cfg)
+    base, floor = base_and_floor(o, dc, cfg.seed)
+    ctx, own = candidate_context(o)
+    asset_fit = dict(base)  # the asset's own fit, before any refit
+    rebase, refit_values, base = refit_base(o.ev, ctx, dc, base, floor)
+    asset_state = (dict(o.ev.values), dict(o.ev.settings), ctx.values)
+    refit_state = ({**o.ev.values, **refit_values}, dict(o.ev.settings), {**ctx.values, **refit_values})
+    flight = free_flight(o.seq, o.asset, o.measure, dc, cfg.seed, o.fit_views, o.held_views, o.fit_frames, o.score,
+                         refit_values)  # fmt: skip
+    candidates = fit_candidates(o.ev, ctx, dc, base, floor, asset_fit, rebase, asset_state, refit_state, flight)
+    judge_at_truth(candidates, o, o.ev, refit_state, ctx, base, floor, dc, flight)
+    best, rival, settled = name_cause(candidates, dc)
     record = {
         "cause": candidates[best]["cause"] if best is not None else "none",
         # other causes that fit as well (gains within diagnose.mimic_margin): the data do not
@@ -299,45 +326,20 @@ def run_diagnosis(cfg) -> dict:
         "mimic_window_margin": float(dc.mimic_window_margin),
         # the free-flight mimics a tie was settled between by their gains over the whole fit
         # window (settle_mimics), the named one first in the free-flight gains' order; else []
-        "settled_among": tie if tie and not rival else [],
-        "discrepancy": {"measure": dc.discrepancy, "unit": measure.unit},
+        "settled_among": settled,
+        "discrepancy": {"measure": dc.discrepancy, "unit": o.measure.unit},
         "v0_refit": bool(own),
-        "fitting_views": [seq.cameras[v].name for v in fit_views],
-        "held_out_views": [seq.cameras[v].name for v in held_views],
-        "frames": fit_frames.tolist(),
+        "fitting_views": [o.seq.cameras[v].name for v in o.fit_views],
+        "held_out_views": [o.seq.cameras[v].name for v in o.held_views],
+        "frames": o.fit_frames.tolist(),
         "free_flight": None if flight is None else flight["record"],
-        "future_frames": future.tolist(),
-        "sequence": str(seq_dir),
-        "run": str(run_dir),
-        "truth": seq.gt_effects() or {},
+        "future_frames": o.future.tolist(),
+        "sequence": str(o.seq_dir),
+        "run": str(o.run_dir),
+        "truth": o.seq.gt_effects() or {},
         "seconds": time.time() - t0,
     }
-    out = Path(dc.out_dir) if dc.out_dir else run_dir / "diagnose"
-    out.mkdir(parents=True, exist_ok=True)
-    if refit_values and rebase["held_out_gain"] >= float(dc.refit_min_gain):  # it carries to the held-out views
-        record["refit_asset"] = str(write_refit_asset(asset, refit_values, out / "asset_refit", rebase))
-        log.info("diagnose: the refit asset -> %s", record["refit_asset"])
-    residuals, plots = None, None
-    ev.reset(asset_state[0], asset_state[1])  # the residuals are the run's own fit's
-    ctx.values = asset_state[2]
-    if dc.residuals:
-        parts = [(fit_views, obs_fit), (held_views, obs_held), (views, obs_future)]
-        residuals, plots = write_residuals(ev, parts, seq, asset, dc, out, measure.unit)
-        record["residuals"] = summary(residuals)
-    record["seconds"] = time.time() - t0
-    record = strict_json(record)
-    (out / "diagnosis.json").write_text(json.dumps(record, indent=1, allow_nan=False))
-    record["file"] = str(out / "diagnosis.json")
-    report = run_dir / "report" / "report.html"
-    if report.exists():
-        from sgdr.discrepancy.report import section
-        from sgdr.report.html import add_section
-
-        add_section(report, section(record, residuals, plots))
-        record["report"] = str(report)
-    else:
-        log.info("diagnose: %s missing, no report section added", report)
-    return record
+    return write_outputs(record, o, dc, rebase, refit_values, asset_state, ctx, t0)
 
 
 def free_flight(seq, asset, measure, dc, seed, fit_views, held_views, fit_frames, score, refit_values) -> dict | None:

@@ -25,6 +25,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import sgdr.backend  # noqa: E402
 import sgdr.config  # noqa: E402
+from sgdr.cli import user_errors
+from sgdr.config import validate
+from sgdr.discrepancy.run import run_diagnosis
 
 sgdr.config.register()
 
@@ -32,7 +35,6 @@ sgdr.config.register()
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     """A bad value or a missing run folder ends with one line `error: ...` (exit 2)."""
-    from sgdr.cli import user_errors
 
     with user_errors(FileNotFoundError):
         diagnose(cfg)
@@ -40,8 +42,6 @@ def main(cfg: DictConfig) -> None:
 
 def diagnose(cfg: DictConfig) -> None:
     sgdr.backend.init(cfg.backend, cfg.threads or None)
-    from sgdr.config import validate
-    from sgdr.discrepancy.run import run_diagnosis
 
     logging.getLogger("sgdr").setLevel(logging.INFO)
     c = OmegaConf.to_object(cfg)

@@ -20,8 +20,17 @@ from omegaconf import OmegaConf
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from dataclasses import replace
+
+from tqdm import tqdm
+
 import sgdr.backend  # noqa: E402
 import sgdr.config  # noqa: E402
+from sgdr.checks import ConfigError
+from sgdr.cli import user_errors
+from sgdr.config import validate
+from sgdr.synth.generate import generate_sequence, is_complete
+from sgdr.synth.objects import OBJECTS
 
 sgdr.config.register()
 log = logging.getLogger("generate")
@@ -29,8 +38,6 @@ log = logging.getLogger("generate")
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg) -> None:
-    from sgdr.cli import user_errors
-    from sgdr.config import validate
 
     with user_errors():
         validate(OmegaConf.to_object(cfg))
@@ -39,13 +46,6 @@ def main(cfg) -> None:
 
 
 def _generate(cfg) -> None:
-    from dataclasses import replace
-
-    from tqdm import tqdm
-
-    from sgdr.checks import ConfigError
-    from sgdr.synth.generate import generate_sequence, is_complete
-    from sgdr.synth.objects import OBJECTS
 
     synth = OmegaConf.to_object(cfg.synth)
     names = list(OBJECTS) if synth.object == "all" else [synth.object]

@@ -25,14 +25,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import sgdr.backend  # noqa: E402
 import sgdr.config  # noqa: E402
+from sgdr.cli import user_errors
+from sgdr.config import validate
 
 sgdr.config.register()
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
-    from sgdr.cli import user_errors
-    from sgdr.config import validate
 
     with user_errors():
         sgdr.backend.init(cfg.backend, cfg.threads or None)

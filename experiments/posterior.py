@@ -26,6 +26,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import sgdr.backend  # noqa: E402
 import sgdr.config  # noqa: E402
+from sgdr.cli import user_errors
+from sgdr.config import validate
+from sgdr.posterior.run import run_posterior
 
 sgdr.config.register()
 
@@ -33,7 +36,6 @@ sgdr.config.register()
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     """A bad value or a missing run folder ends with one line `error: ...` (exit 2)."""
-    from sgdr.cli import user_errors
 
     with user_errors(FileNotFoundError):
         posterior(cfg)
@@ -41,8 +43,6 @@ def main(cfg: DictConfig) -> None:
 
 def posterior(cfg: DictConfig) -> None:
     sgdr.backend.init(cfg.backend, cfg.threads or None)
-    from sgdr.config import validate
-    from sgdr.posterior.run import run_posterior
 
     logging.getLogger("sgdr").setLevel(logging.INFO)
     logging.getLogger("emcee").setLevel(logging.ERROR)  # its short-chain warning is our verdict's job

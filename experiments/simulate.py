@@ -37,6 +37,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import sgdr.backend  # noqa: E402
 import sgdr.config  # noqa: E402
+from sgdr.asset.store import load_asset
+from sgdr.asset.whatif import edited_values, simulate_asset, simulation_dir, simulation_momentum, simulation_record
+from sgdr.cli import user_errors
+from sgdr.config import validate
+from sgdr.report.media import composite_ground, tile, write_video
+from sgdr.run_folder import default_run_name
 
 sgdr.config.register()
 
@@ -45,7 +51,6 @@ sgdr.config.register()
 def main(cfg: DictConfig) -> None:
     """A bad value, a missing asset, a taken output folder or an unstable edit ends with one
     line `error: ...` naming the key or file (exit 2); anything else keeps its traceback."""
-    from sgdr.cli import user_errors
 
     with user_errors():
         try:
@@ -61,11 +66,6 @@ def main(cfg: DictConfig) -> None:
 
 def simulate(cfg: DictConfig) -> None:
     sgdr.backend.init(cfg.backend, cfg.threads or None)
-    from sgdr.asset.store import load_asset
-    from sgdr.asset.whatif import edited_values, simulate_asset, simulation_dir, simulation_momentum, simulation_record
-    from sgdr.config import validate
-    from sgdr.report.media import composite_ground, tile, write_video
-    from sgdr.run_folder import default_run_name
 
     logging.getLogger("sgdr").setLevel(logging.INFO)
     c = OmegaConf.to_object(cfg)

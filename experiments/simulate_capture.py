@@ -26,6 +26,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import sgdr.backend  # noqa: E402
 import sgdr.config  # noqa: E402
+from sgdr.checks import ConfigError
+from sgdr.cli import user_errors
+from sgdr.config import validate
 
 
 @dataclass
@@ -41,9 +44,6 @@ log = logging.getLogger("simulate_capture")
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg) -> None:
-    from sgdr.checks import ConfigError
-    from sgdr.cli import user_errors
-    from sgdr.config import validate
 
     with user_errors():
         c = OmegaConf.to_object(cfg)

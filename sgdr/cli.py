@@ -16,15 +16,16 @@ from __future__ import annotations
 import sys
 from contextlib import contextmanager
 
+from sgdr.anchors.sampling import AnchorInputError
+from sgdr.backend import BackendError
+from sgdr.checks import ConfigError
+from sgdr.data.sequence import SequenceError
+from sgdr.physics.model import PhysicsInputError
+from sgdr.run_folder import RunFolderError
+
 
 def input_errors() -> tuple[type[Exception], ...]:
     """The exceptions that report a bad input (their messages name the key or the file)."""
-    from sgdr.anchors.sampling import AnchorInputError
-    from sgdr.backend import BackendError
-    from sgdr.checks import ConfigError
-    from sgdr.data.sequence import SequenceError
-    from sgdr.physics.model import PhysicsInputError
-    from sgdr.run_folder import RunFolderError
 
     return (ConfigError, SequenceError, RunFolderError, BackendError, PhysicsInputError, AnchorInputError)
 

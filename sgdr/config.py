@@ -9,6 +9,7 @@ the schema in Hydra's ConfigStore; entry points call it before `@hydra.main` run
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from sgdr.anchors import config as anchors_config
 from sgdr.anchors.config import AnchorConfig
@@ -207,7 +208,6 @@ def register() -> None:
 
 def compose(overrides: list[str] | None = None):
     """Compose the config outside `@hydra.main` (tests, notebooks): returns a DictConfig."""
-    from pathlib import Path
 
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir

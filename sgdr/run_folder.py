@@ -19,8 +19,12 @@ import logging
 import re
 from pathlib import Path
 
+from sgdr.asset.store import load_asset
 from sgdr.checks import ConfigError
+from sgdr.data import load_sequence
+from sgdr.data.sequence import SequenceError
 from sgdr.digest import file_hash, key_hash
+from sgdr.synth.generate import is_complete
 
 log = logging.getLogger(__name__)
 
@@ -62,8 +66,6 @@ def ensure_sequence(cfg, generate_if_missing: bool = True) -> Path:
     preset's `synth` settings is refused (it was generated at another preset): pass
     `sequence=<path>` to use it anyway, or delete it to regenerate.
     """
-    from sgdr.data import load_sequence
-    from sgdr.data.sequence import SequenceError
 
     if not cfg.sequence and cfg.synth.object == "all":
         raise ConfigError(
@@ -86,7 +88,6 @@ def ensure_sequence(cfg, generate_if_missing: bool = True) -> Path:
 
         log.info("generating %s at preset %s into %s", cfg.synth.object, cfg.preset, path)
         return Path(generate_sequence(cfg.synth, path, seed=cfg.seed, progress=True))
-    from sgdr.synth.generate import is_complete
 
     if not is_complete(path, cfg.synth):
         seq = load_sequence(path)
@@ -191,8 +192,6 @@ def run_asset_and_sequence(run_dir: Path, sequence: str, scene_file: str, key: s
     """(asset_dir, asset, seq_dir, seq) of a finished run and the sequence it is compared with
     (`sequence`, else the run's own, read with the run's scene file); `key` names the config
     section (posterior | diagnose) in the errors. The sequence must have the asset's views and split."""
-    from sgdr.asset.store import load_asset
-    from sgdr.data import load_sequence
 
     asset_dir = Path(run_dir) / "asset"
     if not (asset_dir / "asset.json").exists():

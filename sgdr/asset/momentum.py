@@ -20,6 +20,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from sgdr.arrays import array3_to_points
+from sgdr.backend import ad
+from sgdr.physics import SimState
+from sgdr.physics.simulate import SPRINGS, contact_consts, euler_contact, frame_constants, plastic_rest_lengths
+
 
 def internal_impulses(model, params, ground, n_frames: int, dt_frame: float, n_substeps: int, cfg) -> np.ndarray:
     """[T, 3] the momentum the springs added up to each frame: Σ over substeps of Σ_i F_i dt.
@@ -31,11 +36,6 @@ def internal_impulses(model, params, ground, n_frames: int, dt_frame: float, n_s
     Pass the n_t the rollout ended up using (`Prediction.n_substeps`) to audit that rollout.
     """
     import drjit as dr
-
-    from sgdr.arrays import array3_to_points
-    from sgdr.backend import ad
-    from sgdr.physics import SimState
-    from sgdr.physics.simulate import SPRINGS, contact_consts, euler_contact, frame_constants, plastic_rest_lengths
 
     t = ad()
     springs = SPRINGS.get_named(cfg.springs, "physics.springs")

@@ -14,7 +14,10 @@ from dataclasses import dataclass, replace
 import drjit as dr
 import numpy as np
 
-from sgdr.arrays import array3_to_points
+from sgdr.arrays import array3_to_points, to_numpy
+from sgdr.asset.momentum import internal_impulses, momentum_check
+from sgdr.backend import ad
+from sgdr.physics import PhysParams, SimState, rollout
 from sgdr.render.images import posed, render_rgba_numpy
 
 
@@ -34,8 +37,6 @@ def audit_momentum(model, params, ground, gravity, pred: Prediction, dt_frame: f
     official model do not conserve momentum, so an identified stiffness field can push the
     object along the ground with nothing external acting; the report warns about it.
     gravity: [3] the rollout's, scene units / s²."""
-    from sgdr.arrays import to_numpy
-    from sgdr.asset.momentum import internal_impulses, momentum_check
 
     if pred.velocities is None or not pred.n_substeps:
         raise ValueError("audit_momentum needs the rollout's velocities and substeps (a fresh `predict`)")
@@ -58,8 +59,6 @@ def audit_momentum(model, params, ground, gravity, pred: Prediction, dt_frame: f
 def physical_params(model, physics_cfg, values: dict):
     """PhysParams from plain values: {"log10_k" [N_A], "kappa", "friction", "restitution",
     "v0" [3], "gravity" [3]} (missing keys keep `PhysParams.init`'s defaults)."""
-    from sgdr.backend import ad
-    from sgdr.physics import PhysParams
 
     t = ad()
     p = PhysParams.init(
@@ -105,7 +104,6 @@ def predict(
     per frame used and, if render_views, images [T, V, H, W, 4] uint8 for every camera in
     `cameras`: RGB over black and the accumulated opacity (the report composites a ground behind it).
     """
-    from sgdr.physics import SimState, rollout
 
     with dr.suspend_grad():
         p = params.detach()

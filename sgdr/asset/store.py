@@ -9,8 +9,14 @@ from dataclasses import asdict, dataclass, fields, is_dataclass
 from pathlib import Path
 
 import numpy as np
+from omegaconf import DictConfig, OmegaConf
 
+from sgdr.anchors.config import AnchorConfig
 from sgdr.cameras import Camera
+from sgdr.gaussians.ply import load_ply, save_ply
+from sgdr.physics import build_spring_model
+from sgdr.physics.config import PhysicsConfig
+from sgdr.skin import IDWBinding
 
 log = logging.getLogger(__name__)
 
@@ -18,7 +24,6 @@ log = logging.getLogger(__name__)
 def _plain(x):
     if is_dataclass(x) and not isinstance(x, type):
         return asdict(x)
-    from omegaconf import DictConfig, OmegaConf
 
     if isinstance(x, DictConfig):
         return OmegaConf.to_container(x, resolve=True)
@@ -44,8 +49,6 @@ class Asset:
 
     def build(self):
         """(SpringModel, IDWBinding) rebuilt from the rest anchors and centres."""
-        from sgdr.physics import build_spring_model
-        from sgdr.skin import IDWBinding
 
         model = build_spring_model(self.anchors, self.anchor_cfg.n_k, self.physics)
         binding = IDWBinding.build(
@@ -68,7 +71,6 @@ def save_asset(
 ) -> Path:
     """ground_point [3]: the anchors' contact plane as simulated (the sequence's ground raised by
     the pipeline's contact margin); None = the sequence's ground point."""
-    from sgdr.gaussians.ply import save_ply
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -95,9 +97,6 @@ def save_asset(
 
 def load_asset(path) -> Asset:
     """Read an asset folder; raises naming the file and field on anything missing."""
-    from sgdr.anchors.config import AnchorConfig
-    from sgdr.gaussians.ply import load_ply
-    from sgdr.physics.config import PhysicsConfig
 
     root = Path(path)
     meta_file = root / "asset.json"

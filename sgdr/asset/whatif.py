@@ -17,14 +17,22 @@ from __future__ import annotations
 import json
 import logging
 import math
-from dataclasses import fields
+from dataclasses import fields, replace
+from dataclasses import fields as dc_fields
 from pathlib import Path
 
 import numpy as np
 
+from sgdr.arrays import points_to_array3, to_numpy
+from sgdr.asset.config import SimulateConfig
+from sgdr.asset.momentum import internal_impulses, momentum_check
+from sgdr.asset.predict import Prediction, physical_params, predict
 from sgdr.asset.store import Asset
 from sgdr.cameras import Camera
+from sgdr.checks import ConfigError
+from sgdr.physics import Ground, SimulationUnstable
 from sgdr.registry import Registry
+from sgdr.render.images import posed, render_rgba_numpy
 
 log = logging.getLogger(__name__)
 
@@ -57,7 +65,6 @@ def check_simulate_config(asset: Asset, sim_cfg) -> None:
     Kept to what a bare error would otherwise hide (a math domain error, a reshape error, a
     rollout of no frames) and to what depends on the asset (its contact model); the value
     ranges of every config section are also checked up front by the config validator."""
-    from sgdr.checks import ConfigError  # a ValueError the drivers report in one line
 
     where = "recon.simulate"
 
@@ -133,10 +140,6 @@ def simulate_asset(asset: Asset, sim_cfg, render_cfg, progress: bool = False):
     feed `sgdr.asset.momentum.momentum_check`. Invalid edits raise ValueError naming
     `recon.simulate.<field>` (`check_simulate_config`).
     """
-    from dataclasses import replace
-
-    from sgdr.asset.predict import physical_params
-    from sgdr.physics import Ground, SimulationUnstable
 
     check_simulate_config(asset, sim_cfg)
     render_with = SIMULATE_CAMERAS.get_named(sim_cfg.cameras)
@@ -173,9 +176,6 @@ def simulation_tag(sim_cfg) -> str:
     """The default name of a simulation's folder, from its edits: every field that differs from
     `SimulateConfig`'s default (except where the outputs go), `<field>-<value>` joined by `_`,
     e.g. `friction-0_stiffness_scale-0.1`, `gravity-0+0+-1.5`; `unedited` when nothing is edited."""
-    from dataclasses import fields as dc_fields
-
-    from sgdr.asset.config import SimulateConfig
 
     default = SimulateConfig()
     parts = []
@@ -202,7 +202,6 @@ def simulation_tag(sim_cfg) -> str:
 
 def _simulation_record(sim_cfg, asset_dir) -> dict:
     """What identifies a simulation in its simulate.json: the asset folder and the edits."""
-    from sgdr.asset.config import SimulateConfig
 
     edits = {
         f.name: getattr(sim_cfg, f.name)
@@ -273,7 +272,6 @@ SIMULATE_CAMERAS = Registry("simulate camera set", "recon.simulate.cameras", Val
 @SIMULATE_CAMERAS.register("sequence")
 def simulate_sequence_cameras(asset, model, params, binding, ground, n_frames, n_t, render_cfg, progress, physics):
     """Every sequence camera renders every frame."""
-    from sgdr.asset.predict import predict
 
     return predict(
         model,
@@ -295,9 +293,6 @@ def simulate_sequence_cameras(asset, model, params, binding, ground, n_frames, n
 @SIMULATE_CAMERAS.register("orbit")
 def simulate_orbit_cameras(asset, model, params, binding, ground, n_frames, n_t, render_cfg, progress, physics):
     """Frame t from orbit camera t: one turn around the object over the clip."""
-    from sgdr.arrays import points_to_array3
-    from sgdr.asset.predict import Prediction, predict
-    from sgdr.render.images import posed, render_rgba_numpy
 
     traj = predict(
         model,
@@ -326,12 +321,6 @@ def simulation_momentum(asset: Asset, sim_cfg, pred) -> dict:
     """`sgdr.asset.momentum.momentum_check` of a `simulate_asset` result under the same edits:
     the rollout is re-run substep by substep (`internal_impulses`, with the n_t the rollout used)
     to sum its spring forces; masses from the asset's spring model, gravity and ground as edited."""
-    from dataclasses import replace
-
-    from sgdr.arrays import to_numpy
-    from sgdr.asset.momentum import internal_impulses, momentum_check
-    from sgdr.asset.predict import physical_params
-    from sgdr.physics import Ground
 
     if pred.velocities is None or not pred.n_substeps:
         raise ValueError("the prediction has no anchor velocities or substeps (simulate_asset's rollouts have them)")

@@ -5,6 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from tqdm import tqdm
+
+from sgdr.arrays import points_to_array3, scalar
+from sgdr.loss import image_loss
+from sgdr.render.images import posed, render
 
 
 @dataclass
@@ -38,8 +43,6 @@ def view_choice(rng: np.random.Generator, n_views: int, views_per_step: int) -> 
 def multiview_image_loss(gaussians, targets: list, cameras: list, views: list[int], render_cfg, lam: float):
     """Mean over `views` of (1-λ) L1 + λ D-SSIM between the render of `gaussians` and the target
     (TensorXf [H, W, 3] each): a Float [1] that carries the Gaussians' gradients."""
-    from sgdr.loss import image_loss
-    from sgdr.render.images import render
 
     loss = 0.0
     for v in views:
@@ -51,7 +54,6 @@ def steps_bar(steps, desc: str, progress: bool, **kwargs):
     """`steps` wrapped in a tqdm bar when `progress` (as the pipeline's other stages do)."""
     if not progress:
         return steps
-    from tqdm import tqdm
 
     return tqdm(steps, desc=desc, leave=False, **kwargs)
 
@@ -61,9 +63,6 @@ def all_view_loss(gaussians, centres: np.ndarray, targets: list, cameras: list, 
     at `centres` [n_fit, M, 3] against `targets` (per frame, per view TensorXf): the deterministic
     loss a run reports before and after the fit (forward only). 0 when there is no frame after 0."""
     import drjit as dr
-
-    from sgdr.arrays import points_to_array3, scalar
-    from sgdr.render.images import posed
 
     if len(centres) < 2:
         return 0.0

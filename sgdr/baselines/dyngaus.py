@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 import drjit as dr
 import numpy as np
+from scipy.spatial import cKDTree
 
 from sgdr.arrays import array3_to_points, points_to_array3, scalar, to_numpy
 from sgdr.backend import ad
@@ -72,7 +73,6 @@ class Neighbours:
 
 def neighbour_pairs(centres0: np.ndarray, k: int, weight_falloff: float) -> Neighbours:
     """kNN pairs of `centres0` [M, 3] (each Gaussian with its k nearest others, k capped at M-1)."""
-    from scipy.spatial import cKDTree
 
     centres0 = np.asarray(centres0, np.float64).reshape(-1, 3)
     m = centres0.shape[0]

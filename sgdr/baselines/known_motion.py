@@ -19,6 +19,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+
+from sgdr.arrays import points_to_array3
+from sgdr.cameras import Camera
+from sgdr.gaussians.model import Gaussians
+from sgdr.render.config import RenderConfig
+from sgdr.render.images import posed, render_rgb_numpy, to_tensor
 
 CENTRE = np.array([0.5, 0.5, 0.2])  # the cube's centre, world
 HALF_SIDE = 0.08  # half the cube's side, scene units
@@ -27,7 +34,6 @@ STEP = np.array([0.015, -0.01, -0.02])  # translation per frame, scene units
 
 def rigid_motion(centres: np.ndarray, f: int) -> np.ndarray:
     """[M, 3] centres at frame f of the "rigid" motion."""
-    from scipy.spatial.transform import Rotation
 
     axis = np.array([0.3, 0.2, 1.0]) / np.linalg.norm([0.3, 0.2, 1.0])
     return Rotation.from_rotvec(np.deg2rad(6.0 * f) * axis).apply(centres - CENTRE) + CENTRE + f * STEP
@@ -61,11 +67,6 @@ class KnownMotion:
 
 def known_motion_cube(motion: str, n_gaussians: int = 250, n_frames: int = 4, seed: int = 0) -> KnownMotion:
     """The cube moved by MOTIONS[motion] over `n_frames` frames, rendered from 4 views."""
-    from sgdr.arrays import points_to_array3
-    from sgdr.cameras import Camera
-    from sgdr.gaussians.model import Gaussians
-    from sgdr.render.config import RenderConfig
-    from sgdr.render.images import posed, render_rgb_numpy, to_tensor
 
     rng = np.random.default_rng(seed)
     centres = rng.uniform(-HALF_SIDE, HALF_SIDE, (n_gaussians, 3)) + CENTRE

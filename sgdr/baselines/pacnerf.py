@@ -28,7 +28,14 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.ndimage import binary_fill_holes
+from scipy.spatial import cKDTree
 
+from sgdr.backend import ad
+from sgdr.observe.images import block_mean, downscale_factor, downscaled
+from sgdr.render.images import posed, render_rgba_numpy
+from sgdr.render.reference import quat_to_matrix
+from sgdr.skin import IDWBinding
 from sgdr.synth import mpm
 
 
@@ -40,9 +47,6 @@ class PacNerfError(ValueError):
 def occupancy(gaussians: dict, points: np.ndarray) -> np.ndarray:
     """[N] occupancy 1 - Π_g (1 - α_g exp(-½ d_gᵀ Σ_g⁻¹ d_g)) of the Gaussians (NumPy dict of
     `Gaussians.to_numpy`) at points [N, 3]; each Gaussian acts within 3 of its largest σ."""
-    from scipy.spatial import cKDTree
-
-    from sgdr.render.reference import quat_to_matrix
 
     means = gaussians["means"]
     scales = np.exp(gaussians["log_scales"])
@@ -64,7 +68,6 @@ def fill_particles(gaussians: dict, spacing: float, threshold: float) -> np.ndar
     """Particles [P, 3] on a lattice of `spacing` filling the Gaussians' volume: the points whose
     occupancy exceeds `threshold`, with enclosed cavities filled (a surface-heavy fit still gives
     a solid object, as PAC-NeRF's density field does)."""
-    from scipy.ndimage import binary_fill_holes
 
     means = gaussians["means"]
     lo = means.min(0) - 2 * spacing
@@ -156,7 +159,6 @@ def substeps_for(scene: Scene, cfg, E_max: float, nu_max: float, n_frames: int) 
 def rollout(scene: Scene, cfg, E, nu, n_frames: int, progress=None) -> np.ndarray:
     """Particle positions [S, n_frames, P, 3] of S candidates (E, ν arrays [S]) simulated in one
     batched MPM program (each on its own grid); frame 0 is the rest state."""
-    from sgdr.backend import ad
 
     t = ad()
     E, nu = np.atleast_1d(np.asarray(E, float)), np.atleast_1d(np.asarray(nu, float))
@@ -196,7 +198,6 @@ class ParticleSkin:
     average of its `k` nearest particles' displacements (sgdr.skin's displacement binding)."""
 
     def __init__(self, gaussians, particles: np.ndarray, k: int):
-        from sgdr.skin import IDWBinding
 
         self.gaussians = gaussians.detach()
         centres = gaussians.to_numpy()["means"]
@@ -204,12 +205,10 @@ class ParticleSkin:
 
     def centres(self, x: np.ndarray):
         """Array3f [M] of the centres for particle positions x [P, 3]."""
-        from sgdr.backend import ad
 
         return self.binding.apply(ad().Array3f(*np.asarray(x, np.float32).T))
 
     def posed(self, x: np.ndarray):
-        from sgdr.render.images import posed
 
         return posed(self.gaussians, self.centres(x))
 
@@ -226,7 +225,6 @@ class Observation:
 def observe(seq, cfg) -> Observation:
     """Views (all, or `n_views` evenly spread) and fit frames 1.. (every `frame_stride`-th, the
     last fit frame always) at most `max_image_size` pixels wide."""
-    from sgdr.observe.images import block_mean, downscale_factor, downscaled
 
     n_v = len(seq.cameras)
     views = np.arange(n_v) if not cfg.n_views or cfg.n_views >= n_v else np.linspace(0, n_v - 1, cfg.n_views)
@@ -245,8 +243,6 @@ def image_discrepancy(skin: ParticleSkin, obs: Observation, positions: np.ndarra
     """Mean over compared views and frames of Σ|render - image| (RGBA) / observed silhouette area;
     positions: [T, P, 3] particle frames."""
     import drjit as dr
-
-    from sgdr.render.images import render_rgba_numpy
 
     total = []
     with dr.suspend_grad():

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sgdr.cameras import Camera
+import cv2
 
 
 class BoardError(ValueError):
@@ -117,7 +118,6 @@ def canonical_order(corners: np.ndarray, gray: np.ndarray, board: Board) -> np.n
     far corner. corners are in OpenCV pixel coordinates (pixel centres at integers), as
     `cv2.findChessboardCorners` returns them; gray: the image they were found in ([H, W]).
     """
-    import cv2
 
     grid = np.asarray(corners, dtype=np.float64).reshape(board.rows, board.cols, 2)
     dx, dy = grid[0, -1] - grid[0, 0], grid[-1, 0] - grid[0, 0]

@@ -36,6 +36,7 @@ import numpy as np
 
 from sgdr.cameras import Camera
 from sgdr.data.board import Board, canonical_order
+import cv2
 
 log = logging.getLogger(__name__)
 
@@ -57,7 +58,6 @@ class Calibration(NamedTuple):
 def find_board(path, board: Board, subpix_iterations: int = 40) -> tuple[np.ndarray, tuple[int, int]] | None:
     """([cols * rows, 1, 2] float32 corners in sgdr's pixel convention, (width, height)) of the
     board in the image at `path`, or None when no board is found (module docstring, 1-3)."""
-    import cv2
 
     image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if image is None:
@@ -95,7 +95,6 @@ def calibrate_from_checkerboards(
     by up to 3 px and the world pose by up to 0.8°, against 2 px and 0.5° with them fixed);
     skip_missing: drop images without a board (logged) instead of failing.
     """
-    import cv2
 
     paths = [Path(p) for p in image_paths]
     if not paths:
@@ -156,7 +155,6 @@ def write_cameras_calib(path, per_camera: dict) -> Path:
 def read_cameras_calib(path, width: int, height: int) -> dict[str, Camera]:
     """{camera name: Camera} from a cameras_calib.json (its K and pose; the distortion is not
     part of a `Camera` and is dropped)."""
-    import cv2
 
     try:
         calib = json.loads(Path(path).read_text())

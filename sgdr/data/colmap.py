@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 # COLMAP's camera models: id -> (name, number of parameters) (src/colmap/sensor/models.h).
 CAMERA_MODELS = {
@@ -79,7 +80,6 @@ def qvec_to_rotmat(qvec) -> np.ndarray:
 
 def rotmat_to_qvec(R) -> np.ndarray:
     """[3, 3] rotation -> [4] unit quaternion (w, x, y, z) with w >= 0."""
-    from scipy.spatial.transform import Rotation
 
     x, y, z, w = Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_quat()
     q = np.array([w, x, y, z])

@@ -48,6 +48,8 @@ from sgdr.data.sequence import (
     scene_fields,
     write_straight_rgba,
 )
+from sgdr.data.sequence import SequenceError
+import imageio.v3 as iio
 
 SPRING_GAUS_FILE = "camera.json"
 PAC_NERF_FILE = "all_data.json"
@@ -100,7 +102,6 @@ def scene_meta(root: Path, layout: str, n_frames: int, recorded=None, scene_file
 
 
 def raise_missing_scene(root: Path, layout: str, missing: list[str]):
-    from sgdr.data.sequence import SequenceError
 
     raise SequenceError(
         f"{root}: the {layout} layout does not record the scene and nothing gave {', '.join(missing)}: pass "
@@ -359,7 +360,6 @@ def read_pac_nerf(root: Path, scene_file=None, **scene) -> Sequence:
 
 def write_rgb(path: Path, rgb):
     """Write [H, W, 3] float in [0, 1] as an 8-bit RGB PNG."""
-    import imageio.v3 as iio
 
     path.parent.mkdir(parents=True, exist_ok=True)
     iio.imwrite(path, np.clip(np.rint(np.asarray(rgb) * 255.0), 0, 255).astype(np.uint8))

@@ -35,17 +35,16 @@ bright_ratio=1.15, dark_ratio=0.5 give it 0.85 / 0.90. Choose the thresholds for
 from __future__ import annotations
 
 import numpy as np
+import cv2
 
 
 def _disk(radius: int) -> np.ndarray:
-    import cv2
 
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
 
 
 def colour_difference(image, plate, blur_sigma: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """([H, W] chromaticity distance, [H, W] brightness ratio b / b_plate, [H, W] max brightness)."""
-    import cv2
 
     eps = 1e-4
     a, b = (np.asarray(x, dtype=np.float32) for x in (image, plate))
@@ -73,7 +72,6 @@ def masks_from_background(
     keep_fraction: float = 0.2,
 ) -> np.ndarray:
     """[H, W] bool object mask of `image` against the clean `plate` (module docstring)."""
-    import cv2
 
     dist, ratio, lum = colour_difference(image, plate, blur_sigma)
     fg = ((dist > chroma_threshold) & (lum > min_brightness)) | (ratio < dark_ratio) | (ratio > bright_ratio)

@@ -22,19 +22,19 @@ matte.
 from __future__ import annotations
 
 import numpy as np
+from sgdr.data.masks import masks_from_background
+import cv2
 
 
 def matte(image: np.ndarray, plate: np.ndarray, threshold: float = 0.1) -> np.ndarray:
     """image, plate [H, W, 3] float in [0, 1] (straight RGB) -> alpha [H, W] float32 in [0, 1].
     threshold: the chromaticity distance above which a pixel is object (`masks_from_background`)."""
-    import cv2
 
     image, plate = np.asarray(image, np.float32), np.asarray(plate, np.float32)
     if image.shape != plate.shape:
         raise ValueError(f"matte: image {image.shape} and background plate {plate.shape} differ in shape")
     if not threshold > 0:
         raise ValueError(f"matte: threshold must be positive, got {threshold}")
-    from sgdr.data.masks import masks_from_background
 
     d = np.abs(image - plate).max(axis=-1)
     kernel = np.ones((3, 3), np.uint8)

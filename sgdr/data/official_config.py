@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from sgdr.data.sequence import fail, read_json
+import yaml
 
 log = logging.getLogger(__name__)
 
@@ -57,7 +58,6 @@ def _base_candidates(path: Path, name: str) -> list[Path]:
 
 def read_spring_gaus_yaml(path, _seen=()) -> dict:
     """The merged official Spring-Gaus config (DEFAULT: resolved) as a dict."""
-    import yaml
 
     path = Path(path)
     if not path.is_file():

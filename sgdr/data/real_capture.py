@@ -56,6 +56,11 @@ from sgdr.data.sequence import (
     require,
     scene_fields,
 )
+from sgdr.data.calibrate import CalibrationError
+from sgdr.data.calibrate import calibrate_from_checkerboards
+from sgdr.data.colmap import qvec_to_rotmat
+from sgdr.data.colmap import read_colmap
+import cv2
 
 MARKER = "dynamic/sequences"
 OFFICIAL_CAMERAS = ("C0733", "C0787", "C0801")  # hard-coded by the official loader
@@ -108,7 +113,6 @@ def colmap_intrinsics(model: str, width: int, height: int, params, where) -> np.
 
 def read_static_scan(static_dir: Path, obj: str) -> Sequence:
     """The static scan as a one-frame Sequence: COLMAP cameras, photos composited with their masks."""
-    from sgdr.data.colmap import qvec_to_rotmat, read_colmap
 
     colmap_dir = static_dir / "colmap" / obj
     for name in ("cameras.bin", "images.bin"):
@@ -168,7 +172,6 @@ def read_static_scan(static_dir: Path, obj: str) -> Sequence:
 
 
 def read_real_capture(root: Path, scene_file=None, **overrides) -> Sequence:
-    import cv2
 
     root = Path(root)
     config = find_config(root, scene_file)
@@ -311,7 +314,6 @@ def read_calibration(dyn: Path, calib_file: Path, cameras: list[str]) -> dict:
         if not isinstance(calib, dict) or not calib:
             fail(calib_file, "<root>", "expected an object {camera: {rvecs, tvecs}}")
         return calib
-    from sgdr.data.calibrate import CalibrationError, calibrate_from_checkerboards
 
     pattern_file = dyn / "checkerboard" / "pattern.json"
     if not pattern_file.is_file():

@@ -38,6 +38,9 @@ from pathlib import Path
 import numpy as np
 
 from sgdr.cameras import Camera, CameraError
+from PIL import Image
+from tqdm import tqdm
+import imageio.v3 as iio
 
 SEQUENCE_FILE = "sequence.json"
 FORMAT_NAME = "sgdr-sequence"
@@ -129,7 +132,6 @@ class Sequence:
         """Decode every image of every view and frame once (a `SequenceError` naming the first
         file that is missing, corrupt or of the wrong size), so a bad file fails before any work
         instead of inside a stage minutes later. About 3 ms per 128 px image."""
-        from tqdm import tqdm
 
         pairs = [(v, f) for v in range(self.n_views) for f in range(self.n_frames)]
         for v, f in tqdm(pairs, desc="checking images", unit="image", disable=not progress, leave=False):
@@ -200,7 +202,6 @@ def as_array(value, shape: tuple, file, field_name: str) -> np.ndarray:
 
 def png_header(path: Path) -> tuple[int, int, int]:
     """(width, height, channels) of a PNG without decoding its pixels."""
-    from PIL import Image
 
     if not Path(path).is_file():
         fail(path, "<image>", "image file is missing")
@@ -222,7 +223,6 @@ def check_image(path: Path, width: int, height: int, view_field: str, channels=(
 
 def read_pixels(path: Path, width: int | None = None, height: int | None = None) -> np.ndarray:
     """[H, W, C] float32 in [0, 1] of an 8- or 16-bit image file (C = 1..4), size checked."""
-    import imageio.v3 as iio
 
     if not Path(path).is_file():
         fail(path, "<image>", "image file is missing")
@@ -264,7 +264,6 @@ def write_straight_rgba(path: Path, rgba: np.ndarray):
 
 def write_rgba(path: Path, rgba: np.ndarray):
     """Write [H, W, 4] float in [0, 1] as an 8-bit RGBA PNG."""
-    import imageio.v3 as iio
 
     rgba = np.asarray(rgba)
     if rgba.ndim != 3 or rgba.shape[2] != 4:

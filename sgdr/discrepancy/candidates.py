@@ -33,7 +33,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 
+from sgdr.physics import Ground
 from sgdr.registry import Registry
 
 
@@ -263,7 +265,6 @@ class Evaluator:
     score: (observation, positions [T, N_A, 3]) -> D [V, F] (`sgdr.discrepancy.measures`)."""
 
     def __init__(self, asset, rollout, obs_fit, obs_held, obs_future, score):
-        from sgdr.physics import Ground
 
         self.asset, self.rollout = asset, rollout
         self.values = dict(asset.values)  # the base's values and physics settings (`rebase` replaces them)
@@ -345,7 +346,6 @@ def _search(objective, bounds: list, x0: np.ndarray, evaluations: int) -> np.nda
     `evaluations` rollouts per value, one value after another from x0 (one coordinate sweep:
     each value of a multi-value candidate gets its own budget, which Powell's line searches
     spent on the first direction)."""
-    from scipy.optimize import minimize_scalar
 
     x = np.asarray(x0, float).copy()
     for i, (lo, hi) in enumerate(bounds):

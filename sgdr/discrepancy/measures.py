@@ -25,8 +25,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sgdr.backend import ad
 from sgdr.observe.images import block_mean, downscale_factor, downscaled
+from sgdr.observe.silhouette import CentreMap, discrepancy, observation
 from sgdr.registry import Registry
+from sgdr.render.images import posed, render_rgba_numpy
 
 
 @dataclass
@@ -61,9 +64,6 @@ class RenderScorer:
     def __call__(self, obs: ImageObservation, positions: np.ndarray) -> np.ndarray:
         import drjit as dr
 
-        from sgdr.backend import ad
-        from sgdr.render.images import posed, render_rgba_numpy
-
         t = ad()
         out = np.zeros((len(obs.cameras), len(obs.frames)))
         with dr.suspend_grad():
@@ -81,13 +81,11 @@ def _render_scorer(asset, dc, render_cfg, seed):
 
 
 def _observe_points(seq, views, frames, dc, seed):
-    from sgdr.observe.silhouette import observation
 
     return observation(seq, views, frames, dc.n_mask_points, seed=seed)
 
 
 def _points_scorer(asset, dc, render_cfg, seed):
-    from sgdr.observe.silhouette import CentreMap, discrepancy
 
     centre_map = CentreMap(asset, dc.n_points, seed)
 

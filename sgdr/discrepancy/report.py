@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sgdr.report.html import Section, esc, image, paragraph, table
+
 
 def pyplot():
     import matplotlib
@@ -131,7 +133,6 @@ def _ci(fit: dict, key: str) -> str:
 def section(diagnosis: dict, record: dict | None, plots: dict | None):
     """The report's 'Model discrepancy' section: the decision and candidates, then the residuals
     (when computed). diagnosis and record are strict-JSON dicts (None for missing numbers)."""
-    from sgdr.report.html import Section, esc, image, paragraph, table
 
     body = [f'<p id="discrepancy-cause"><b>Cause named: {esc(diagnosis["cause"])}</b> '
             "(a candidate is named when its held-out gain reaches its threshold, calibrated on null data; the largest "

@@ -32,6 +32,11 @@ left out of the centroids: a silhouette cut by the border has a biased centroid.
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import gaussian_filter
+from scipy.optimize import brentq, minimize_scalar
+
+from sgdr.observe.contact import hit_frame
+from sgdr.observe.silhouette import CentreMap
 
 DRAG_RANGE = (-20.0, 60.0)  # 1/s, the linear-drag search of `free_flight`; negative = faster than gravity
 
@@ -67,7 +72,6 @@ def simulated_masks(cameras, centres: np.ndarray, observed: list) -> tuple[list,
     mean, camera z) scales its image by s = z_0 / z_f, so σ_f = s σ_0 and ℓ_f = ℓ_0 / s²: a change
     of distance alone scales the simulated silhouette's area by s², as it scales the observed one.
     Without this a fixed σ and level shrink a receding object's silhouette too little."""
-    from scipy.ndimage import gaussian_filter
 
     def density(counts, sigma):  # [H, W] smoothed centre counts
         return gaussian_filter(counts, sigma=sigma, mode="constant")
@@ -165,7 +169,6 @@ def _drag_fit(t: np.ndarray, s: np.ndarray, g: float, sigma2: float | None) -> t
     sum of squares exceeds the best one by at most 3.84 sigma2 (Δχ² for one parameter), from the
     best c outwards to the first crossing on each side (a 200-point walk, then Brent's root); an
     end at a DRAG_RANGE bound means unbounded. None without sigma2."""
-    from scipy.optimize import brentq, minimize_scalar
 
     def mse(c):
         phi, psi = _drag_basis(t, float(c))
@@ -392,8 +395,6 @@ def residual_diagnostics(seq, asset, positions: np.ndarray, d: np.ndarray, grid:
     contact starts at the sequence's hit frame, the simulated one at the rollout's own (the first
     frame an anchor touches the asset's contact plane); the free-fall fits of both use the frames
     before the earlier of the two, so that both see the same frames of free flight."""
-    from sgdr.observe.contact import hit_frame
-    from sgdr.observe.silhouette import CentreMap
 
     cams = list(seq.cameras)
     t_n = int(min(positions.shape[0], seq.n_frames, d.shape[1]))

@@ -27,19 +27,24 @@ from __future__ import annotations
 
 import json
 import logging
+import shutil
 import time
 from dataclasses import dataclass, replace
+from dataclasses import replace as dc_replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
-from sgdr.discrepancy.candidates import CANDIDATES, Context, Evaluator, fit_candidate
+from sgdr.discrepancy.candidates import CANDIDATES, CONTROLS, Context, Evaluator, fit_candidate
 from sgdr.discrepancy.decision import decide, excess_gain, rivals, settle_mimics, threshold
 from sgdr.discrepancy.measures import MEASURES
-from sgdr.discrepancy.report import section
-from sgdr.discrepancy.residuals import summary
+from sgdr.discrepancy.report import section, write_plots
+from sgdr.discrepancy.residuals import d_matrix, residual_diagnostics, summary
 from sgdr.discrepancy.truth import scene_of, truth_values
 from sgdr.evaluate.score import strict_json
+from sgdr.observe.contact import touching
+from sgdr.physics.simulate import stable_substeps
 from sgdr.posterior.rollouts import ROLLOUTS
 from sgdr.report.html import add_section
 from sgdr.run_folder import run_asset_and_sequence, run_sequence
@@ -349,10 +354,6 @@ def free_flight(seq, asset, measure, dc, seed, fit_views, held_views, fit_frames
     images at up to `diagnose.free_flight_image_size`, the base the refit base (which the fall
     does not see). None when fewer than 2 such frames: the free-flight candidates then use the
     whole fit window like the rest."""
-    from dataclasses import replace as dc_replace
-
-    from sgdr.discrepancy.candidates import Evaluator
-    from sgdr.posterior.rollouts import ROLLOUTS
 
     frames = np.arange(1, min(int(seq.hit_frame), int(np.max(fit_frames)) + 1))  # every one: few, cheap
     if frames.size < 2:
@@ -388,7 +389,6 @@ def free_flight(seq, asset, measure, dc, seed, fit_views, held_views, fit_frames
 def first_touch(positions, ground_point, ground_normal) -> int | None:
     """The first frame after frame 0 in which a point of `positions` [T, N, 3] touches the ground
     (`sgdr.observe.contact.touching`); None when none does (or the rollout is unstable)."""
-    from sgdr.observe.contact import touching
 
     if positions is None:
         return None
@@ -403,7 +403,6 @@ def judge_in_free_flight(cand, flight, ev, refit_state, ctx, base, floor, dc) ->
     Its future loss is its whole rollout's (the refit base with the fitted value), and so is its
     `fit_window_gain`: the held-out gain over the whole fit window, rebounds included, where weaker
     gravity (a slower rise) and drag (a faster one) part ways; recorded, not yet used to decide."""
-    from sgdr.discrepancy.candidates import fit_candidate
 
     saved_ctx = ctx.values
     ctx.values = refit_state[2]
@@ -510,7 +509,6 @@ def refit_controls(ev, ctx, dc, evaluations: int, settings: dict | None = None, 
     fit alone, the diagnosis's reference). `ev` and `ctx` are left as they were. Returns per
     control its fitted value and losses, the losses (d_fit, d_held_out, d_future) at the end, and
     `replacements`: the asset values the kept controls replace (arrays; not for diagnosis.json)."""
-    from sgdr.discrepancy.candidates import CONTROLS, fit_candidate
 
     saved = (dict(ev.values), dict(ev.settings), ctx.values)
     ev.rebase(values or {}, settings or {})
@@ -541,10 +539,6 @@ def write_refit_asset(asset, replacements: dict, out: Path, rebase: dict) -> Pat
     """A copy of the asset folder with the refitted values (`experiments/simulate.py` loads it like
     any asset); n_substeps raised to the stability bound of the new stiffness when needed. asset.json
     gets a "refit" entry saying where the values come from."""
-    import shutil
-    from types import SimpleNamespace
-
-    from sgdr.physics.simulate import stable_substeps
 
     out = Path(out)
     if out.exists():
@@ -570,9 +564,6 @@ def write_refit_asset(asset, replacements: dict, out: Path, rebase: dict) -> Pat
 def write_residuals(ev, parts, seq, asset, dc, out: Path, unit: str) -> tuple[dict, dict]:
     """The residual diagnostics of the base rollout: residuals.json and the plots in `out`;
     returns (the strict-JSON record, {name: plot path}). unit: the measure's D unit."""
-    from sgdr.discrepancy.report import write_plots
-    from sgdr.discrepancy.residuals import d_matrix, residual_diagnostics
-    from sgdr.evaluate.score import strict_json
 
     t0 = time.time()
     pos = ev.positions({})

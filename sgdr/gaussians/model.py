@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sgdr.arrays import to_numpy
 from sgdr.backend import ad
 
 
@@ -106,14 +107,13 @@ class Gaussians:
 
     def to_numpy(self) -> dict[str, np.ndarray]:
         """Detached float64 copies: means, log_scales, rotations, color_logits [M, 3|4], opacity_logits [M]."""
-        from sgdr.arrays import to_numpy as arr
 
         return {
-            "means": arr(self.means).T.reshape(-1, 3) if self.count else np.zeros((0, 3)),
-            "log_scales": arr(self.log_scales).T.reshape(-1, 3) if self.count else np.zeros((0, 3)),
-            "rotations": arr(self.rotations).T.reshape(-1, 4) if self.count else np.zeros((0, 4)),
-            "color_logits": arr(self.color_logits).T.reshape(-1, 3) if self.count else np.zeros((0, 3)),
-            "opacity_logits": arr(self.opacity_logits).reshape(-1),
+            "means": to_numpy(self.means).T.reshape(-1, 3) if self.count else np.zeros((0, 3)),
+            "log_scales": to_numpy(self.log_scales).T.reshape(-1, 3) if self.count else np.zeros((0, 3)),
+            "rotations": to_numpy(self.rotations).T.reshape(-1, 4) if self.count else np.zeros((0, 4)),
+            "color_logits": to_numpy(self.color_logits).T.reshape(-1, 3) if self.count else np.zeros((0, 3)),
+            "opacity_logits": to_numpy(self.opacity_logits).reshape(-1),
         }
 
     def subset(self, keep: np.ndarray) -> Gaussians:

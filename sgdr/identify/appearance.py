@@ -21,7 +21,8 @@ import numpy as np
 from sgdr.arrays import scalar
 from sgdr.identify.adam import make_adam
 from sgdr.identify.config import ReconConfig
-from sgdr.render.images import as_array3, isotropic_log_scale
+from sgdr.loss import image_loss
+from sgdr.render.images import as_array3, isotropic_log_scale, render
 
 
 @dataclass
@@ -38,8 +39,6 @@ def refine_appearance(
     One random view per step (seeded); `cfg.refine_iterations` steps; learning rates
     `cfg.lr_scale`, `cfg.lr_color`, `cfg.lr_opacity`; loss weight `cfg.refine_lambda_dssim`.
     """
-    from sgdr.loss import image_loss
-    from sgdr.render.images import render
 
     means = dr.detach(means)
     g = gaussians.detach()

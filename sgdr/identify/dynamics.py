@@ -63,8 +63,11 @@ import numpy as np
 from sgdr.arrays import scalar, to_numpy
 from sgdr.identify.adam import adam_from_numpy, adam_to_numpy, make_adam
 from sgdr.identify.config import ReconConfig
+from sgdr.loss import image_loss
+from sgdr.physics import PhysParams, SimState, SimulationUnstable, doubled_substeps, rollout, simulate_frame
+from sgdr.physics.laws import CONTACT_PARAMETERS
 from sgdr.registry import Registry
-from sgdr.render.images import posed
+from sgdr.render.images import posed, render
 
 log = logging.getLogger(__name__)
 
@@ -88,7 +91,6 @@ class DynamicsResult:
 def learnable_names(physics_cfg) -> list[str]:
     """PhysParams fields optimised by the dynamic stage: log10 k_i, κ (unless
     physics.soft_vector is off: then η = 1 and κ acts on nothing) and the contact's Θ(B)."""
-    from sgdr.physics.laws import CONTACT_PARAMETERS
 
     kappa = ["kappa"] if physics_cfg.soft_vector else []
     return ["log10_k", *kappa, *CONTACT_PARAMETERS.get_named(physics_cfg.contact)]
@@ -158,9 +160,6 @@ def rollout_loss(
 
     targets: [n_fit] lists of TensorXf [H, W, 3] per view; v0 [3]; dt seconds per frame.
     """
-    from sgdr.loss import image_loss
-    from sgdr.physics import SimState, rollout
-    from sgdr.render.images import render
 
     with dr.suspend_grad():
         state0 = SimState.at_rest(model, v0)
@@ -176,8 +175,6 @@ def rollout_loss(
 
 def _frame_loss(gaussians, binding, x, targets_f, cameras, views, render_cfg, lam):
     """Mean image loss of the bound Gaussians at anchor positions x (Array3f [N_A]) over `views`."""
-    from sgdr.loss import image_loss
-    from sgdr.render.images import render
 
     g = posed(gaussians, binding.apply(x))
     loss = 0.0
@@ -271,7 +268,6 @@ RECON_MODES = Registry("reconstruction mode", "recon.mode", ValueError)
 def pass_truncated(p: _Pass, opt, rng, n_t: int) -> tuple[list[float], int]:
     """Official: frame by frame from the detached previous state, an Adam step per frame. An
     unstable frame is redone with the doubled n_t, kept for the rest of training (module doc)."""
-    from sgdr.physics import SimState, SimulationUnstable, doubled_substeps, simulate_frame
 
     frame_losses: list[float] = []
     state = SimState.at_rest(p.model, p.v0)
@@ -310,7 +306,6 @@ def pass_truncated(p: _Pass, opt, rng, n_t: int) -> tuple[list[float], int]:
 def pass_full(p: _Pass, opt, rng, n_t: int) -> tuple[list[float], int]:
     """Gradients through every fit frame, one Adam step per pass; `rollout` applies the
     substep remedy within the pass, so the pass's n_t is returned unchanged (module doc)."""
-    from sgdr.physics import SimState, rollout
 
     params = _with_opt(p.base, opt, p.cfg)
     states = rollout(
@@ -506,7 +501,6 @@ def fit_dynamics(
     recon.search.parameters), the prior's strength chosen on held-out time
     (recon.field_prior_strengths), then the local Adam passes on all fit frames.
     """
-    from sgdr.physics import PhysParams
 
     stiffness = STIFFNESS.get_named(cfg.stiffness)
     n_fit = len(targets)

@@ -38,12 +38,19 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import drjit as dr
 import numpy as np
 
 from sgdr.arrays import to_numpy
 from sgdr.backend import ad
+from sgdr.loss import image_loss
+from sgdr.observe.images import block_mean, downscaled
+from sgdr.physics.batched import batched_rollout
+from sgdr.physics.laws import CONTACT_PARAMETERS
+from sgdr.physics.simulate import effective_stiffness, model_host
+from sgdr.render.images import posed, render
 
 log = logging.getLogger(__name__)
 
@@ -101,9 +108,6 @@ class SearchSpace:
 def stable_level(model, kappa_values, dt_frame: float, n_t: int, physics_cfg) -> float:
     """The highest uniform log10 k whose rollout at n_t substeps per frame keeps the stability
     bound dt <= physics.cfl_factor sqrt(m_i / k_eff,i) for every κ in `kappa_values`."""
-    from types import SimpleNamespace
-
-    from sgdr.physics.simulate import effective_stiffness, model_host
 
     mass = model_host(model)["particle_mass"]
     t = ad()
@@ -121,7 +125,6 @@ def search_space(search_cfg, physics_cfg, model, dt_frame: float, n_t: int) -> S
     """The box of `recon.search.parameters` with the `recon.search.<name>_range` ranges; κ only
     where the soft vector acts, e only where the contact has one (physics.contact); log10 k
     capped at the stability bound at n_t (`stable_level`). Raises SearchConfigError naming the key."""
-    from sgdr.physics.laws import CONTACT_PARAMETERS
 
     unknown = [n for n in search_cfg.parameters if n not in GLOBAL_PARAMETERS]
     if unknown:
@@ -237,7 +240,6 @@ class PopulationScorer:
         lam: float,
         image_scale: int = 1,
     ):
-        from sgdr.observe.images import block_mean, downscaled
 
         k = int(image_scale)
         if k < 1:
@@ -271,7 +273,6 @@ class PopulationScorer:
         return out
 
     def rollout(self, values: dict[str, np.ndarray], n_frames: int):
-        from sgdr.physics.batched import batched_rollout
 
         return batched_rollout(
             self.model, self.base, self.samples(values), self.ground, n_frames, self.dt, self.n_t, self.physics_cfg
@@ -279,8 +280,6 @@ class PopulationScorer:
 
     def __call__(self, values: dict[str, np.ndarray]) -> np.ndarray:
         """[S] losses of the candidates {name: [S] values}."""
-        from sgdr.loss import image_loss
-        from sgdr.render.images import posed, render
 
         t = ad()
         run = self.rollout(values, len(self.targets))

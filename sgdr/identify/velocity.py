@@ -28,7 +28,8 @@ from sgdr.arrays import scalar, to_numpy
 from sgdr.backend import ad
 from sgdr.identify.adam import make_adam
 from sgdr.identify.config import ReconConfig
-from sgdr.render.images import posed
+from sgdr.loss import image_loss
+from sgdr.render.images import posed, render
 
 
 @dataclass
@@ -55,8 +56,6 @@ def fit_initial_velocity(
     gaussians: refined Gaussians at rest (frame 0). targets_by_frame: {f: [TensorXf [H, W, 3]
     per view]} for the pre-contact frames f >= 1. gravity [3] scene units / s².
     """
-    from sgdr.loss import image_loss
-    from sgdr.render.images import render
 
     frames = sorted(f for f in targets_by_frame if f >= 1)
     if not frames:

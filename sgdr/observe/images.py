@@ -12,7 +12,6 @@ from sgdr.cameras import Camera
 def upscaled(camera, s: int):
     """The camera whose pixels are s x s sub-pixels of `camera`'s (intrinsics x s, size x s): the
     same view, rendered s times finer (the inverse of `sgdr.observe.images.downscaled`)."""
-    from sgdr.cameras import Camera
 
     if s < 1:
         raise ValueError(f"image_scale={s}: must be a positive integer")

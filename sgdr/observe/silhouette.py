@@ -7,6 +7,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt, map_coordinates
+
+from sgdr.skin.binding import idw_weights
 
 
 @dataclass
@@ -22,7 +25,6 @@ class Observation:
 def observation(seq, views, frames, n_mask_points: int, seed: int = 0) -> Observation:
     """Distance transforms and sampled silhouette pixels of `seq`'s views x frames (alpha > 0.5).
     Raises ValueError naming the view and frame of an empty silhouette."""
-    from scipy.ndimage import distance_transform_edt
 
     rng = np.random.default_rng(seed)
     cams = [seq.cameras[v] for v in views]
@@ -47,7 +49,6 @@ def observation(seq, views, frames, n_mask_points: int, seed: int = 0) -> Observ
 
 def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """img [H, W] at pixel coordinates (u, v) (pixel centres at integer + 0.5), clamped to the image."""
-    from scipy.ndimage import map_coordinates
 
     return map_coordinates(img, [v.ravel() - 0.5, u.ravel() - 0.5], order=1, mode="nearest").reshape(u.shape)
 
@@ -82,7 +83,6 @@ class CentreMap:
     NumPy; linear in the anchors, so the subset is exact)."""
 
     def __init__(self, asset, n_points: int, seed: int = 0):
-        from sgdr.skin.binding import idw_weights
 
         cfg = asset.anchor_cfg
         rest = np.asarray(asset.rest_centres, float)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sgdr.physics import Ground
 from sgdr.render.images import to_tensor
 
 
@@ -16,7 +17,6 @@ def frame_targets(seq, frame: int) -> list:
 def raised_ground(seq, margin: float):
     """The sequence's ground plane moved `margin` scene units along its normal, as a `Ground`:
     the plane the anchors (interior points) collide with."""
-    from sgdr.physics import Ground
 
     normal = np.asarray(seq.ground_normal, float) / np.linalg.norm(np.asarray(seq.ground_normal, float))
     return Ground(np.asarray(seq.ground_point, float) + float(margin) * normal, normal)

@@ -50,6 +50,7 @@ from sgdr.backend import ad, frozen
 from sgdr.physics.config import PhysicsConfig
 from sgdr.physics.model import Ground, PhysicsInputError, PhysParams, SimState, SpringModel
 from sgdr.physics.simulate import ADJOINTS, CONTACTS, SPRINGS, frame_constants, stable_substeps
+from sgdr.skin.binding import IDWBinding, anchor_transpose
 
 # one recording per input layout (batch width, physics settings, first frame or not); least recently
 # used ones dropped past `limit`, so many batch widths do not pile up kernels. Measured (Dr.Jit 1.5,
@@ -247,7 +248,6 @@ def batched_centres(binding, positions: np.ndarray) -> np.ndarray:
     `sgdr.skin.IDWBinding` (its `apply`, Eq. 14, so both binding forms), all S x T frames of
     anchors bound in one call: the frames are stacked as S T copies of the binding (anchor
     indices offset per copy). NaN positions (unstable samples) give NaN centres."""
-    from sgdr.skin.binding import IDWBinding, anchor_transpose
 
     t = ad()
     positions = np.asarray(positions, dtype=np.float64)

@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from sgdr.arrays import array3_to_points, scalar, to_numpy
 from sgdr.physics.config import PhysicsConfig
+from sgdr.physics.extensions import ground_plane
 
 
 def params_numpy(params) -> dict:
     """PhysParams -> dict of float64 arrays/scalars (log10_k [N_A], v0 [3], gravity [3])."""
-    from sgdr.arrays import array3_to_points, scalar, to_numpy
 
     return {
         "log10_k": to_numpy(params.log10_k),
@@ -112,7 +113,6 @@ def substep(m: dict, p: dict, x, v, ground, dt: float, cfg: PhysicsConfig):
     """Semi-implicit Euler (Eqs. 10-12) then contact (Eq. 13), with the model extensions
     (`sgdr.physics.extensions`: gravity scale, implicit air drag, moved / tilted ground, spring
     plasticity, which updates m["spring_rest_length"] in place)."""
-    from sgdr.physics.extensions import ground_plane
 
     p = dict(p, gravity=float(cfg.gravity_scale) * np.asarray(p["gravity"], dtype=np.float64))
     f = spring_force(m, p, x, v, cfg)

@@ -23,19 +23,32 @@ Table 2's other rows, SIMPLIFIED (`recon.model=dyngaus` | `deform4d`, `method=dy
 
 from __future__ import annotations
 
+import dataclasses
+import importlib
 import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from omegaconf import OmegaConf
 
+from sgdr.arrays import array3_to_points, points_to_array3
+from sgdr.asset.predict import Prediction
+from sgdr.baselines.common import all_view_loss
+from sgdr.baselines.pacnerf import ParticleSkin, fill_particles, observe, plan_scene, rollout, search
+from sgdr.evaluate.score import evaluate_prediction, strict_json
 from sgdr.gaussians.ply import load_ply, save_ply
+from sgdr.observe.targets import frame_targets
 from sgdr.pipeline.flow import RunContext, report_frames, report_videos
+from sgdr.render.images import posed, render_rgba_numpy
+from sgdr.report import media as report
+from sgdr.report.html import Section, image, paragraph, scores_table, table, video, write_report
+from sgdr.report.media import pyplot, save_figure
+from sgdr.report.verdict import FIT_PSNR_FAIR, FIT_PSNR_GOOD, Verdict, baseline_warnings, fit_verdict, future_verdict
 
 
 def _pacnerf_scene(ctx: RunContext, particles: np.ndarray, n_frames: int):
-    from sgdr.baselines.pacnerf import plan_scene
 
     cfg, seq = ctx.cfg.baseline.pacnerf, ctx.seq
     spacing = _spacing(particles, cfg)
@@ -54,7 +67,6 @@ def _spacing(gaussian_means: np.ndarray, cfg) -> float:
 
 # ---------------------------------------------------------------------- dynamics: fill + search
 def pacnerf_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.baselines.pacnerf import ParticleSkin, fill_particles, observe, search
 
     cfg, seq = ctx.cfg.baseline.pacnerf, ctx.seq
     g = ctx.gaussians.to_numpy()
@@ -108,10 +120,6 @@ def pacnerf_identified(stages: dict) -> dict:
 def pacnerf_predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
     import drjit as dr
 
-    from sgdr.arrays import array3_to_points
-    from sgdr.baselines.pacnerf import ParticleSkin, rollout
-    from sgdr.render.images import render_rgba_numpy
-
     cfg, seq, dyn = ctx.cfg.baseline.pacnerf, ctx.seq, ctx.values["dynamics"]
     particles = dyn["particles"].astype(np.float64)
     scene = _pacnerf_scene(ctx, particles, seq.n_frames)
@@ -142,7 +150,6 @@ def pacnerf_predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
 def load_prediction(out: Path, n_frames: int, n_views: int, what: str = "every frame"):
     """The predict stage's trajectory.npz and images.npy as a `Prediction`, checked to cover
     `n_frames` frames and `n_views` views (`what` names them in the error)."""
-    from sgdr.asset.predict import Prediction
 
     with np.load(out / "trajectory.npz", allow_pickle=False) as z:
         a, c = z["anchors"], z["centres"]
@@ -158,8 +165,6 @@ def pacnerf_predict_load(ctx: RunContext, out: Path):
 
 # ---------------------------------------------------------------------- report
 def _scores_section(out: Path, scores: dict, n_fit: int):
-    from sgdr.report import media as report
-    from sgdr.report.html import Section, image, paragraph, scores_table
 
     body = scores_table(scores)
     try:
@@ -172,7 +177,6 @@ def _scores_section(out: Path, scores: dict, n_fit: int):
 
 def plot_search(path: Path, evaluated: list, best: tuple, E_box, nu_box) -> Path:
     """The search's candidates in (log10 E, ν), coloured by their loss, the best marked."""
-    from sgdr.report.media import pyplot, save_figure
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 4.0))
@@ -191,8 +195,6 @@ def plot_search(path: Path, evaluated: list, best: tuple, E_box, nu_box) -> Path
 
 
 def pacnerf_report_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.report.html import Section, image, paragraph, table, write_report
-    from sgdr.report.verdict import Verdict, baseline_warnings, fit_verdict, future_verdict
 
     cfg, seq, dyn, scores = ctx.cfg, ctx.seq, ctx.values["dynamics"], ctx.values["evaluate"]
     pc = cfg.baseline.pacnerf
@@ -314,16 +316,12 @@ FIT_FRAME_MODELS = {
 
 
 def _fit_targets(ctx: RunContext) -> list:
-    from sgdr.observe.targets import frame_targets
 
     return [frame_targets(ctx.seq, f) for f in range(ctx.seq.n_fit)]
 
 
 def fit_frames_produce(model: str, ctx: RunContext, out: Path, ckpt) -> None:
     """dynamics of `model` (dyngaus | deform4d): its reconstruction of the fit frames."""
-    import importlib
-
-    from sgdr.baselines.common import all_view_loss
 
     module, name = FIT_FRAME_MODELS[model].fit.split(":")
     fit = getattr(importlib.import_module(module), name)
@@ -382,9 +380,6 @@ def fit_frames_predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
     """Every view's render of the reconstructed fit frames (there is no future to predict)."""
     import drjit as dr
 
-    from sgdr.arrays import points_to_array3
-    from sgdr.render.images import posed, render_rgba_numpy
-
     centres = ctx.values["dynamics"]["centres"]
     images = []
     with dr.suspend_grad():
@@ -402,7 +397,6 @@ def fit_frames_predict_load(ctx: RunContext, out: Path):
 
 def fit_frames_evaluate_produce(ctx: RunContext, out: Path, ckpt) -> None:
     """The fit frames' scores; the future's are null with the reason `FIT_ONLY`."""
-    from sgdr.evaluate.score import evaluate_prediction, strict_json
 
     r = ctx.cfg.recon
     scores = evaluate_prediction(
@@ -420,9 +414,6 @@ def fit_frames_evaluate_produce(ctx: RunContext, out: Path, ckpt) -> None:
 
 
 def fit_frames_report_produce(model: str, ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.report import media as report
-    from sgdr.report.html import Section, image, paragraph, table, video, write_report
-    from sgdr.report.verdict import FIT_PSNR_FAIR, FIT_PSNR_GOOD, Verdict
 
     cfg, seq, dyn, scores = ctx.cfg, ctx.seq, ctx.values["dynamics"], ctx.values["evaluate"]
     what = FIT_FRAME_MODELS[model]
@@ -487,9 +478,6 @@ def fit_frames_report_produce(model: str, ctx: RunContext, out: Path, ckpt) -> N
 
 def plain_section(section) -> dict:
     """A config section (dataclass or DictConfig) as a plain dict."""
-    import dataclasses
-
-    from omegaconf import OmegaConf
 
     if dataclasses.is_dataclass(section):
         return dataclasses.asdict(section)

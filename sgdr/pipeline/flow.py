@@ -17,9 +17,23 @@ from pathlib import Path
 
 import numpy as np
 
+from sgdr.anchors import sample_anchors
 from sgdr.arrays import points_to_array3
+from sgdr.asset.predict import Prediction, audit_momentum, physical_params, predict
+from sgdr.asset.store import load_asset, save_asset
+from sgdr.evaluate.score import evaluate_prediction, strict_json
 from sgdr.gaussians.ply import load_ply, save_ply
+from sgdr.identify.appearance import refine_appearance
+from sgdr.identify.dynamics import fit_dynamics
+from sgdr.identify.velocity import fit_initial_velocity
 from sgdr.observe.targets import frame_targets, raised_ground
+from sgdr.physics import build_spring_model
+from sgdr.report import media as report
+from sgdr.report.html import Section, run_sections, table, write_report
+from sgdr.report.verdict import judge
+from sgdr.skin import IDWBinding
+from sgdr.static_fit.fit import fit_static
+from sgdr.static_fit.scan import fit_scan, register_scan
 
 
 def contact_margin(recon_cfg, static_gaussians) -> float:
@@ -53,13 +67,11 @@ class RunContext:
 
     @cached_property
     def model(self):  # SpringModel from the rest anchors (kNN springs, Eqs. 5-7)
-        from sgdr.physics import build_spring_model
 
         return build_spring_model(self.values["anchors"], self.cfg.anchors.n_k, self.cfg.physics)
 
     @cached_property
     def binding(self):  # the skinning of the static centres to the anchors (Eq. 14)
-        from sgdr.skin import IDWBinding
 
         a = self.cfg.anchors
         return IDWBinding.build(self.static_centres, self.values["anchors"], a.n_b, a.p_b, a.binding)
@@ -88,7 +100,6 @@ class RunContext:
 
 # ---------------------------------------------------------------------- 1. static fit (frame 0)
 def static_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.static_fit.fit import fit_static
 
     if "static" in ctx.seq.extras:  # a real capture: fit its static scan, register it into the dynamic frame
         return _static_real_capture(ctx, out)
@@ -100,7 +111,6 @@ def static_produce(ctx: RunContext, out: Path, ckpt) -> None:
 def _static_real_capture(ctx: RunContext, out: Path) -> None:
     """Sec. 4.2: Gaussians fitted to the scan (its own frame), then registered by the dynamic
     views' frame-0 masks (`sgdr.static_fit.scan`); gaussians.ply holds them in the dynamic frame."""
-    from sgdr.static_fit.scan import fit_scan, register_scan
 
     cfg = ctx.cfg
     scan = fit_scan(ctx.seq.extras["static"], cfg.static_fit, cfg.render, cfg.seed, ctx.progress)
@@ -129,7 +139,6 @@ def static_load(ctx: RunContext, out: Path):
 
 # ---------------------------------------------------------------------- 2. anchors
 def anchors_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.anchors import sample_anchors
 
     a = ctx.cfg.anchors
     points = sample_anchors(ctx.static_centres, a.n_anchors, a.sampler, a.voxel_size, ctx.cfg.seed)
@@ -145,7 +154,6 @@ def anchors_load(ctx: RunContext, out: Path) -> np.ndarray:
 
 # ---------------------------------------------------------------------- 3. appearance at the bound positions
 def refine_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.identify.appearance import refine_appearance
 
     bound_means = ctx.binding.apply(points_to_array3(ctx.values["anchors"]))
     res = refine_appearance(
@@ -168,7 +176,6 @@ def refine_load(ctx: RunContext, out: Path):
 
 # ---------------------------------------------------------------------- 4. v0 from the free-fall frames
 def velocity_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.identify.velocity import fit_initial_velocity
 
     seq = ctx.seq
     targets = {f: frame_targets(seq, f) for f in range(1, min(int(seq.hit_frame), int(seq.n_fit)))}
@@ -197,7 +204,6 @@ def velocity_load(ctx: RunContext, out: Path) -> dict:
 
 # ---------------------------------------------------------------------- 5. dynamic reconstruction
 def dynamics_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.identify.dynamics import fit_dynamics
 
     seq, cfg = ctx.seq, ctx.cfg
     targets = [frame_targets(seq, f) for f in range(int(seq.n_fit))]
@@ -254,7 +260,6 @@ def dynamics_load(ctx: RunContext, out: Path) -> dict:
 
 # ---------------------------------------------------------------------- 6. prediction (fit frames from frame 0, then the future)
 def predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.asset.predict import audit_momentum, physical_params, predict
 
     cfg, seq = ctx.cfg, ctx.seq
     params = physical_params(ctx.model, cfg.physics, ctx.identified)
@@ -280,7 +285,6 @@ def predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
 
 
 def predict_load(ctx: RunContext, out: Path):
-    from sgdr.asset.predict import Prediction
 
     with np.load(out / "trajectory.npz", allow_pickle=False) as z:
         a, c = z["anchors"], z["centres"]
@@ -296,7 +300,6 @@ def predict_load(ctx: RunContext, out: Path):
 
 # ---------------------------------------------------------------------- 7. evaluation
 def evaluate_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.evaluate.score import evaluate_prediction, strict_json
 
     r = ctx.cfg.recon
     scores = evaluate_prediction(
@@ -317,7 +320,6 @@ def report_frames(seq, pred, n_frames: int | None = None) -> list[np.ndarray]:
     """Labelled video frames of every frame (or of the first `n_frames`: a prediction of the fit
     frames only): [ground truth | prediction] per view, both over the sequence's ground plane,
     with the frame number and the FIT / FUTURE marker."""
-    from sgdr.report import media as report
 
     grounds = [report.ground_image(cam, seq.ground_point, seq.ground_normal) for cam in seq.cameras]
     frames = []
@@ -334,7 +336,6 @@ def report_frames(seq, pred, n_frames: int | None = None) -> list[np.ndarray]:
 def report_videos(ctx: RunContext, out: Path) -> list[tuple[Path, str]]:
     """side_by_side.mp4 (every frame) and future.mp4 written into `out` unless
     recon.render_videos is off; (file, caption) of each."""
-    from sgdr.report import media as report
 
     seq, pred = ctx.seq, ctx.values["predict"]
     videos = []
@@ -358,9 +359,6 @@ def report_videos(ctx: RunContext, out: Path) -> list[tuple[Path, str]]:
 
 
 def report_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.report import media as report
-    from sgdr.report.html import Section, run_sections, table, write_report
-    from sgdr.report.verdict import judge
 
     cfg, seq, pred, dyn = ctx.cfg, ctx.seq, ctx.values["predict"], ctx.values["dynamics"]
     videos = report_videos(ctx, out)
@@ -403,7 +401,6 @@ def report_load(ctx: RunContext, out: Path) -> list[str]:
 
 # ---------------------------------------------------------------------- 9. the simulatable asset
 def asset_produce(ctx: RunContext, out: Path, ckpt) -> None:
-    from sgdr.asset.store import save_asset
 
     save_asset(
         out,
@@ -420,7 +417,6 @@ def asset_produce(ctx: RunContext, out: Path, ckpt) -> None:
 
 
 def asset_load(ctx: RunContext, out: Path):
-    from sgdr.asset.store import load_asset
 
     return load_asset(out)
 

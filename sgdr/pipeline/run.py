@@ -41,10 +41,14 @@ from pathlib import Path
 import numpy as np
 
 from sgdr.checks import ConfigError
+from sgdr.config import validate
+from sgdr.data import load_sequence
 from sgdr.digest import file_hash, key_hash
+from sgdr.evaluate.score import strict_json
+from sgdr.pipeline import baselines_flow as bf
 from sgdr.pipeline import flow
 from sgdr.pipeline.flow import RunContext
-from sgdr.pipeline.stages import StageResult, StageRunner
+from sgdr.pipeline.stages import CHECKPOINT_DIR, Checkpoint, StageResult, StageRunner, plain
 from sgdr.registry import Registry
 from sgdr.run_folder import (
     claim_run_dir,
@@ -55,6 +59,7 @@ from sgdr.run_folder import (
     sequence_written_since,
     sibling_runs,
 )
+from sgdr.tracking import RunTracker
 
 log = logging.getLogger(__name__)
 
@@ -146,7 +151,6 @@ def spring_identified(stages: dict) -> dict:
 def _baseline_models() -> dict:
     """The baselines' pipelines: the shared stages (static fit, anchors, refine, v0) followed by
     their own rows (`sgdr.pipeline.baselines_flow`)."""
-    from sgdr.pipeline import baselines_flow as bf
 
     shared = tuple(st for st in PIPELINE if st.name in ("static", "anchors", "refine", "velocity"))
     evaluate = next(st for st in PIPELINE if st.name == "evaluate")
@@ -287,7 +291,6 @@ RECON_STAGE_FIELDS = {
 def recon_section(cfg, stage: str) -> dict:
     """The `recon` section as stage `stage` sees it for its key: every field except
     `RECON_NEVER_IN_KEYS` and the fields other stages own (`RECON_STAGE_FIELDS`)."""
-    from sgdr.pipeline.stages import plain
 
     others = {f for name, fields in RECON_STAGE_FIELDS.items() if name != stage for f in fields}
     return {k: v for k, v in plain(cfg.recon).items() if k not in others and k not in RECON_NEVER_IN_KEYS}
@@ -339,9 +342,6 @@ def run_pipeline(cfg, progress: bool = True, run_dir: Path | None = None) -> Run
     cfg: the composed `sgdr.config.Config` (a dataclass instance: `OmegaConf.to_object`).
     The backend must be initialised by the caller (`sgdr.backend.init`).
     """
-    from sgdr.config import validate
-    from sgdr.data import load_sequence
-    from sgdr.tracking import RunTracker
 
     t_start = time.time()
     validate(cfg)  # every config value, before any work
@@ -382,7 +382,6 @@ def run_metrics(cfg, seq_root: Path, stages: dict[str, StageResult], t_sequence:
     """What metrics.json holds: the evaluate stage's scores, the run's identity, the dynamic
     losses, the identified parameters and the timings; strict JSON (a value that is not a
     finite number is null, with the reason in `missing`)."""
-    from sgdr.evaluate.score import strict_json
 
     scores = dict(stages["evaluate"].value)
     missing = dict(scores.pop("missing", {}))
@@ -466,7 +465,6 @@ def caused_by_interrupt(exc: BaseException) -> bool:
 
 def interrupted_message(run_dir: Path, stage: str, done: list[str]) -> str:
     """One line: where the run stopped, what is saved, how to resume."""
-    from sgdr.pipeline.stages import CHECKPOINT_DIR, Checkpoint
 
     saved = f"stages {', '.join(done)} are complete" if done else "no stage was complete"
     ckpt = Checkpoint(run_dir / stage / CHECKPOINT_DIR, "")

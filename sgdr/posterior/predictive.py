@@ -11,7 +11,13 @@ a truth outside the bands there is a failure of prediction, not of the fit.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+
+from sgdr.evaluate.geometry import chamfer_distance
+from sgdr.report.html import Section, esc, image, paragraph, table, video
+from sgdr.report.media import playback, tile, write_video
 
 
 def heights(centres: np.ndarray, ground_point, ground_normal) -> tuple[np.ndarray, np.ndarray]:
@@ -36,7 +42,6 @@ def predictive(
     frames whose true centre-of-mass height lies in the 5-95% band, both as heights and as
     displacements from frame 0 (`*_disp_*`: the truth's particles are not the Gaussian centres,
     so their heights differ by a representation offset at rest, where every draw agrees)."""
-    from sgdr.evaluate.geometry import chamfer_distance
 
     rng = np.random.default_rng(seed)
     pick = rng.choice(samples.shape[0], size=min(int(n_draws), samples.shape[0]), replace=False)
@@ -115,7 +120,6 @@ def ensemble_video(seq, centres: np.ndarray, stable: np.ndarray, path, max_views
     with the projected bound centres of every posterior draw (blue, one dot each) and of the
     posterior median (orange) on top, frame by frame over fit and future; a green bar over fit
     frames, an orange one over future frames. centres [S, T, P, 3] with the median at index 0."""
-    from sgdr.report.media import playback, tile, write_video
 
     n_v = min(max_views, len(seq.cameras))
     views = sorted({int(round(i * len(seq.cameras) / n_v)) % len(seq.cameras) for i in range(n_v)})
@@ -240,9 +244,6 @@ def _g(x, digits=4):
 def section(record: dict, out_dir):
     """The report's 'Posterior' section (`sgdr.report.html.Section`); its first line is
     the convergence headline ('Not converged: ...' when a criterion failed)."""
-    from pathlib import Path
-
-    from sgdr.report.html import Section, esc, image, paragraph, table, video
 
     out_dir = Path(out_dir)
     d = record["diagnostics"]

@@ -21,6 +21,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from sgdr.arrays import array3_to_points
+from sgdr.asset.predict import physical_params
+from sgdr.physics import SimState, SimulationUnstable, rollout
+from sgdr.physics.batched import batched_rollout
+from sgdr.physics.simulate import doubled_substeps
 from sgdr.registry import Registry
 
 SAMPLE_KEYS = ("log10_k_shift", "kappa", "friction", "restitution", "zeta0", "v0")
@@ -61,10 +66,6 @@ def sample_values(base_params: dict, samples: dict, i: int) -> dict:
 def loop_rollout(model, base_params: dict, samples: dict, ground, n_frames: int, dt_frame: float, n_substeps: int, cfg):
     """(positions [S, T, N_A, 3], stable [S]): one forward rollout from rest per sample."""
     import drjit as dr
-
-    from sgdr.arrays import array3_to_points
-    from sgdr.asset.predict import physical_params
-    from sgdr.physics import SimState, SimulationUnstable, rollout
 
     s = sample_count(samples)
     out = np.full((s, int(n_frames), model.n_anchors, 3), np.nan)
@@ -110,8 +111,6 @@ def batched_samples_rollout(
     give the same answer for every sample (a sample unstable there too stays unstable). Before,
     these samples went through `loop_rollout` one by one: the tiny SBC case with the stiffest
     truth took 2-3x as long as the others."""
-    from sgdr.asset.predict import physical_params
-    from sgdr.physics.simulate import doubled_substeps
 
     s = sample_count(samples)
     params = physical_params(model, cfg, base_params)
@@ -132,7 +131,6 @@ def _batches(run: tuple, mapped: dict, idx: np.ndarray, n_substeps: int, pad: bo
     program. pad: a last, partial batch is padded (repeating its last sample) to the next power
     of two, so that retries of a varying few samples replay a handful of recorded widths
     instead of recording one per count (the sampler's own calls have one width)."""
-    from sgdr.physics.batched import batched_rollout
 
     model, params, ground, n_frames, dt_frame, cfg = run
     out = [], [], []

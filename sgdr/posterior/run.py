@@ -26,6 +26,12 @@ from pathlib import Path
 import numpy as np
 
 from sgdr.evaluate.score import strict_json
+from sgdr.observe.silhouette import CentreMap, discrepancy, observation
+from sgdr.physics import Ground
+from sgdr.posterior import predictive as pp
+from sgdr.posterior.likelihood import SilhouetteLikelihood
+from sgdr.posterior.rollouts import ROLLOUTS
+from sgdr.posterior.sample import LogProbability, Problem, diagnose, headline, kept_samples, run_ensembles
 from sgdr.run_folder import run_asset_and_sequence
 
 log = logging.getLogger(__name__)
@@ -33,12 +39,6 @@ log = logging.getLogger(__name__)
 
 def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     """cfg: the composed config (`Config`); returns the record written to posterior.json."""
-    from sgdr.observe.silhouette import CentreMap, discrepancy, observation
-    from sgdr.physics import Ground
-    from sgdr.posterior import predictive as pp
-    from sgdr.posterior.likelihood import SilhouetteLikelihood
-    from sgdr.posterior.rollouts import ROLLOUTS
-    from sgdr.posterior.sample import LogProbability, Problem, diagnose, headline, kept_samples, run_ensembles
 
     pc = cfg.posterior
     t0 = time.time()

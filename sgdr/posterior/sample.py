@@ -43,6 +43,9 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import expit, logit
+
+from sgdr.observe.silhouette import discrepancy
 
 
 @dataclass
@@ -91,7 +94,6 @@ class LogProbability:
     positions -> centres; frames: the observation's frame indices into the rollout."""
 
     def __init__(self, problem: Problem, rollout_fn, centre_map, likelihood):
-        from sgdr.observe.silhouette import discrepancy
 
         self.problem, self.rollout_fn, self.centre_map, self.likelihood = problem, rollout_fn, centre_map, likelihood
         self._discrepancy = discrepancy
@@ -151,12 +153,10 @@ class LogitSpace:
         self.low, self.width = problem.low, problem.high - problem.low
 
     def to_theta(self, z: np.ndarray) -> np.ndarray:
-        from scipy.special import expit
 
         return self.low + self.width * expit(z)
 
     def to_z(self, theta: np.ndarray) -> np.ndarray:
-        from scipy.special import logit
 
         return logit((np.asarray(theta, float) - self.low) / self.width)
 

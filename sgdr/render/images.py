@@ -9,6 +9,7 @@ import numpy as np
 
 from sgdr.arrays import to_numpy
 from sgdr.backend import ad
+from sgdr.render.splat import render as splat
 
 
 def to_tensor(img: np.ndarray):
@@ -36,7 +37,6 @@ def as_array3(log_scale):
 
 def render(gaussians, camera, render_cfg):
     """`sgdr.render`'s splatting renderer (CONTRACTS.md): RenderOutput(rgb [H, W, 3], alpha)."""
-    from sgdr.render.splat import render as splat
 
     return splat(gaussians, camera, render_cfg)
 

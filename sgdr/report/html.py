@@ -22,7 +22,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from sgdr.report.verdict import Verdict
+from sgdr.report import media as report
+from sgdr.report.verdict import Verdict, momentum_note, parameter_rows
 
 MAX_EMBED_BYTES = 64 * 2**20  # a larger file is linked instead of embedded (the page stays loadable)
 MIME = {".png": "image/png", ".mp4": "video/mp4", ".webm": "video/webm", ".gif": "image/gif"}
@@ -186,7 +187,6 @@ def scores_table(scores: dict) -> str:
 def identification_body(out: Path, dyn: dict) -> str:
     """How sure the identification is: the global search's landscape (plot, the best
     candidates, the spread of their futures) and the field prior's choice on held-out time."""
-    from sgdr.report import media as report
 
     body = ""
     search = dyn.get("search") or {}
@@ -259,8 +259,6 @@ def run_sections(
     """The base sections of a run's report; writes their plots into `out` (metric_curves.png,
     losses.png, stiffness.png). videos: (file in `out`, caption) already written; momentum: the
     predict stage's momentum audit (`sgdr.asset.predict.audit_momentum`), if made."""
-    from sgdr.report import media as report
-    from sgdr.report.verdict import momentum_note, parameter_rows
 
     sections = []
     curves = scores.get("per_frame", {})

@@ -17,6 +17,8 @@ import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+import cv2
+import imageio.v2 as imageio
 import numpy as np
 
 
@@ -53,7 +55,6 @@ def write_video(path, frames: Sequence[np.ndarray], fps: float) -> Path:
 
     Frames are padded with black to even sizes (yuv420p needs them); nothing is rescaled.
     """
-    import imageio.v2 as imageio
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -142,7 +143,6 @@ FUTURE_COLOUR = (245, 130, 48)  # RGB of the "FUTURE" marker
 def put_text(img: np.ndarray, text: str, org: tuple[int, int], colour=(255, 255, 255), max_width: int = 0) -> None:
     """Draw `text` with its baseline-left at org (x, y) into the uint8 image, in place; shrunk to
     `max_width` pixels when given."""
-    import cv2
 
     scale = 0.45
     if max_width:
@@ -154,7 +154,6 @@ def put_text(img: np.ndarray, text: str, org: tuple[int, int], colour=(255, 255,
 def labelled_pair(gt: np.ndarray, pred: np.ndarray, min_height: int = 96, header: int = 16) -> np.ndarray:
     """[ground truth | prediction] of one view, each enlarged (nearest) to at least `min_height`
     pixels and titled in a `header`-pixel strip."""
-    import cv2
 
     g, p = to_uint8(gt), to_uint8(pred)
     k = max(1, math.ceil(min_height / g.shape[0]))

@@ -25,6 +25,7 @@ import logging
 
 import drjit as dr
 import numpy as np
+from tqdm import tqdm
 
 from sgdr.arrays import to_numpy
 from sgdr.backend import ad
@@ -132,7 +133,6 @@ def fit_static(
     progress: bool = True,
 ) -> Gaussians:
     """Fit isotropic Gaussians of constant scale `cfg.s0` to posed RGBA images (see module)."""
-    from tqdm import tqdm
 
     t = ad()
     _check_inputs(images, cameras)

@@ -34,6 +34,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+from tqdm import tqdm
+
+from sgdr.backend import ad
+from sgdr.gaussians.model import Gaussians
+from sgdr.render.splat import render
 
 
 @dataclass
@@ -63,7 +69,6 @@ class Registration:
 
     def apply_gaussians(self, g):
         """The Gaussians mapped into the dynamic frame (centres, scales by s, rotations by R)."""
-        from sgdr.gaussians.model import Gaussians
 
         p = g.to_numpy()
         q = _rotate_quaternions(p["rotations"], self.R)
@@ -74,13 +79,11 @@ class Registration:
 
 def euler_xyz_deg(angles) -> np.ndarray:
     """The official INIT_R: intrinsic X-Y-Z Euler angles in degrees -> [3, 3] (Rx @ Ry @ Rz)."""
-    from scipy.spatial.transform import Rotation
 
     return Rotation.from_euler("XYZ", np.asarray(angles, dtype=np.float64), degrees=True).as_matrix()
 
 
 def _rotate_quaternions(q: np.ndarray, R: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
 
     q = np.asarray(q, dtype=np.float64)
     rot = Rotation.from_matrix(R) * Rotation.from_quat(q[:, [1, 2, 3, 0]])  # scipy: (x, y, z, w)
@@ -141,10 +144,6 @@ def register(
     """Fit the similarity static -> dynamic frame to the dynamic masks (see the module docstring)."""
     import drjit as dr
     import mitsuba as mi
-    from tqdm import tqdm
-
-    from sgdr.backend import ad
-    from sgdr.render.splat import render
 
     t = ad()
     if len(cameras) != len(masks) or not cameras:

@@ -19,6 +19,10 @@ from dataclasses import replace
 import numpy as np
 
 from sgdr.cameras import Camera
+from sgdr.data.sequence import SequenceError
+from sgdr.gaussians.model import Gaussians
+from sgdr.static_fit.fit import box_from_masks, fit_static
+from sgdr.static_fit.register import RegisterConfig, euler_xyz_deg, register
 
 
 def normalised_cameras(cameras: list[Camera], origin: np.ndarray, k: float) -> list[Camera]:
@@ -28,8 +32,6 @@ def normalised_cameras(cameras: list[Camera], origin: np.ndarray, k: float) -> l
 
 def fit_scan(static_seq, cfg, render_cfg, seed: int = 0, progress: bool = False):
     """Gaussians fitted to a static scan (a one-frame Sequence), in the scan's own frame."""
-    from sgdr.gaussians.model import Gaussians
-    from sgdr.static_fit.fit import box_from_masks, fit_static
 
     images = [static_seq.image(v, 0) for v in range(static_seq.n_views)]
     lo, hi = box_from_masks(images, static_seq.cameras, cfg)
@@ -45,8 +47,6 @@ def fit_scan(static_seq, cfg, render_cfg, seed: int = 0, progress: bool = False)
 
 def register_scan(gaussians, seq, cfg, render_cfg, seed: int = 0, progress: bool = False):
     """(Gaussians in the dynamic frame, Registration) from the scan's Gaussians and `seq`'s frame 0."""
-    from sgdr.data.sequence import SequenceError
-    from sgdr.static_fit.register import RegisterConfig, euler_xyz_deg, register
 
     init = seq.extras.get("registration_init") or {}
     if not init.get("given"):

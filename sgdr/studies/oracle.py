@@ -20,11 +20,18 @@ from dataclasses import dataclass, field, replace
 
 import drjit as dr
 import numpy as np
+from scipy.spatial import cKDTree
 
+from sgdr.anchors import sample_anchors
 from sgdr.arrays import array3_to_points, points_to_array3, scalar, to_numpy
+from sgdr.asset.predict import physical_params
+from sgdr.backend import ad
 from sgdr.evaluate.baselines import BASELINES, ISSUE_BASELINES, physics_free_predictions
 from sgdr.evaluate.geometry import chamfer_distance
+from sgdr.identify.adam import make_adam
+from sgdr.identify.dynamics import clamp_to_ranges
 from sgdr.observe.targets import raised_ground
+from sgdr.physics import PhysParams, SimState, build_spring_model, rollout
 
 
 @dataclass
@@ -77,9 +84,6 @@ class OracleResult:
 
 def tracked_anchor_index(particles0: np.ndarray, n_anchors: int, seed: int) -> np.ndarray:
     """[N_A] indices of farthest-point-sampled particles of frame 0 (particles0 [P, 3])."""
-    from scipy.spatial import cKDTree
-
-    from sgdr.anchors import sample_anchors
 
     chosen = sample_anchors(particles0, int(n_anchors), "fps", 0.0, int(seed))  # [N_A, 3]
     _, index = cKDTree(particles0).query(chosen, k=1)  # exact: the sampler returns particles
@@ -106,10 +110,6 @@ def fit_tracks(
     v0 [3]; recon_cfg: `ReconConfig`, whose learning rates and clamps the dynamic stage uses.
     Returns (values, losses [iterations], simulated anchors [T, N_A, 3]).
     """
-    from sgdr.backend import ad
-    from sgdr.identify.adam import make_adam
-    from sgdr.identify.dynamics import clamp_to_ranges
-    from sgdr.physics import PhysParams, SimState, build_spring_model, rollout
 
     t = ad()
     n_frames, n_a = tracks.shape[0], tracks.shape[1]
@@ -168,7 +168,6 @@ def fit_tracks(
 
 def _rollout_points(model, params, ground, n_frames: int, dt_frame: float, cfg) -> np.ndarray:
     """Anchor positions [n_frames, N_A, 3] of a rollout from rest, without gradients."""
-    from sgdr.physics import SimState, rollout
 
     with dr.suspend_grad():
         states = rollout(model, params, SimState.at_rest(model, params.v0), ground, n_frames, dt_frame, cfg)
@@ -193,8 +192,6 @@ def offset_scan(
     "fit_track_error", "future_track_error", "final_centre" [3]}]; ensemble: the mean rollout
     of the offsets whose fit error is within `ensemble_tol` x the best, scored the same way
     ({"offsets", "fit_track_error", "future_track_error", "spread_last"}; {} without offsets)."""
-    from sgdr.asset.predict import physical_params
-    from sgdr.physics import build_spring_model
 
     offsets = [float(o) for o in offsets]
     if not offsets:

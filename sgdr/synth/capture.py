@@ -63,13 +63,34 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
+import cv2
 import numpy as np
+import yaml
+from omegaconf import OmegaConf
+from scipy.spatial.transform import Rotation
+from tqdm import tqdm
 
 from sgdr.cameras import Camera
 from sgdr.checks import ConfigError
 from sgdr.data import capture_layout as layout
 from sgdr.data.board import Board, board_image
+from sgdr.data.calibrate import Calibration, write_cameras_calib
+from sgdr.data.colmap import ColmapCamera, ColmapImage, rotmat_to_qvec, write_colmap
 from sgdr.synth.capture_config import RealCaptureSimConfig, rule_problem
+from sgdr.synth.capture_scene import (
+    build_scene,
+    expose,
+    mask_scene,
+    render_linear,
+    table_dict,
+    table_texture,
+    write_jpeg,
+    write_mask,
+)
+from sgdr.synth.config import EffectsConfig, SynthConfig
+from sgdr.synth.generate import CONTACT_CELLS, simulate_drop
+from sgdr.synth.objects import build_object
+from sgdr.synth.render_gt import sensor_dict, surface_mesh
 from sgdr.synth.similarity import Similarity, camera_in, random_rotation
 
 log = logging.getLogger(__name__)
@@ -83,7 +104,6 @@ def as_config(cfg) -> RealCaptureSimConfig:
     """`cfg` as a RealCaptureSimConfig (accepts the Hydra DictConfig node `cfg.realcap`)."""
     if isinstance(cfg, RealCaptureSimConfig):
         return cfg
-    from omegaconf import OmegaConf
 
     return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(RealCaptureSimConfig), cfg))
 
@@ -141,7 +161,6 @@ def simulate_real_capture(out_dir, cfg, seed: int, progress: bool = True) -> Pat
 # ---------------------------------------------------------------------------- geometry
 def _synth_config(cfg: RealCaptureSimConfig):
     """The sgdr.synth settings of the drop (the rest are SynthConfig's defaults)."""
-    from sgdr.synth.config import EffectsConfig, SynthConfig
 
     return SynthConfig(
         object=cfg.object,
@@ -178,7 +197,6 @@ def contact_frame(frames_u: np.ndarray, ground_z: float, dx: float) -> int:
     """The first frame in which the MPM's ground acts: its lowest particle is within
     `sgdr.synth.generate.CONTACT_CELLS` Δx of the plane (its B-spline stencil reaches the
     collider band); frames before it are free flight. frames_u: [F, P, 3] simulation frame."""
-    from sgdr.synth.generate import CONTACT_CELLS
 
     near = np.nonzero(frames_u[:, :, 2].min(1) - ground_z < CONTACT_CELLS * dx)[0]
     return int(near[0]) if len(near) else len(frames_u) - 1
@@ -213,7 +231,6 @@ def _inside(camera: Camera, points, edge: float) -> bool:
 
 def board_poses(camera: Camera, board: Board, n: int, tilt_deg: float, fill, rng) -> list[tuple]:
     """n - 1 random board-to-camera poses (R [3, 3], t [3]) facing `camera` (module docstring)."""
-    from scipy.spatial.transform import Rotation
 
     f, W = camera.K[0, 0], camera.width
     width = (board.cols + 1 + 2 * board.margin) * board.square
@@ -245,25 +262,7 @@ def board_poses(camera: Camera, board: Board, n: int, tilt_deg: float, fill, rng
 # ---------------------------------------------------------------------------- writing
 def _write_capture(root: Path, cfg: RealCaptureSimConfig, seed: int, progress: bool) -> dict:
     """Write the whole capture into root; returns the timings (seconds per part)."""
-    import cv2
     import mitsuba as mi
-    from tqdm import tqdm
-
-    from sgdr.data.calibrate import Calibration, write_cameras_calib
-    from sgdr.data.colmap import ColmapCamera, ColmapImage, rotmat_to_qvec, write_colmap
-    from sgdr.synth.capture_scene import (
-        build_scene,
-        expose,
-        mask_scene,
-        render_linear,
-        table_dict,
-        table_texture,
-        write_jpeg,
-        write_mask,
-    )
-    from sgdr.synth.generate import simulate_drop
-    from sgdr.synth.objects import build_object
-    from sgdr.synth.render_gt import sensor_dict, surface_mesh
 
     timings = {}
     obj_name = cfg.obj_name or cfg.object
@@ -427,7 +426,6 @@ def _write_ply(path: Path, points) -> None:
 
 def _euler_xyz_deg(R) -> list:
     """Intrinsic XYZ Euler angles (R = Rx Ry Rz), degrees: the official INIT_R convention."""
-    from scipy.spatial.transform import Rotation
 
     return Rotation.from_matrix(R).as_euler("XYZ", degrees=True).tolist()
 
@@ -435,7 +433,6 @@ def _euler_xyz_deg(R) -> list:
 def _truth(cfg, seed, info, hit_frame, frames, board, poses, rng, timings) -> dict:
     """gt/truth.json (module docstring). frames: the similarities U2D, S2D, the video cameras (D),
     the photo K_s and the particles (D) per frame; rng draws the rough initial registration."""
-    from scipy.spatial.transform import Rotation
 
     U2D, S2D, video_d, K_s, particles_d = (frames[k] for k in ("U2D", "S2D", "video", "K_s", "particles"))
     c_s = S2D.inverse().apply(particles_d[0]).mean(0)
@@ -496,7 +493,6 @@ def _truth(cfg, seed, info, hit_frame, frames, board, poses, rng, timings) -> di
 
 def _write_config_yaml(path: Path, cfg, obj_name: str, truth: dict, particles_d) -> None:
     """The official-style config.yaml (DATA, DYNAMIC / VELOCITY gravity), self-contained."""
-    import yaml
 
     allp = np.concatenate(particles_d)
     lo, hi = allp.min(0), allp.max(0)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from sgdr.synth.render_gt import SurfaceMesh, scene_dict, srgb, to_mitsuba_mesh
@@ -29,7 +30,6 @@ from sgdr.synth.render_gt import SurfaceMesh, scene_dict, srgb, to_mitsuba_mesh
 def table_texture(colour, amplitude: float, cells: int, rng: np.random.Generator, size: int = 512) -> np.ndarray:
     """[size, size, 3] float32 linear albedo: colour x (1 + amplitude n), n smooth noise in [-1, 1]
     with `cells` noise cells across (bicubic upsampling of a random grid)."""
-    import cv2
 
     coarse = rng.uniform(-1.0, 1.0, (cells, cells)).astype(np.float32)
     n = cv2.resize(coarse, (size, size), interpolation=cv2.INTER_CUBIC)
@@ -104,7 +104,6 @@ def expose(linear_rgb, exposure: float, wb, noise_sigma: float, rng: np.random.G
 
 def write_jpeg(path, rgb_u8: np.ndarray, quality: int) -> Path:
     """Write an [H, W, 3] uint8 RGB image as a JPEG (`quality` 1-100)."""
-    import cv2
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -118,7 +117,6 @@ def write_jpeg(path, rgb_u8: np.ndarray, quality: int) -> Path:
 
 def write_mask(path, mask: np.ndarray) -> Path:
     """Write an [H, W] bool mask as an 8-bit single-channel PNG (255 = object)."""
-    import cv2
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -33,8 +33,13 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from omegaconf import OmegaConf
 
+from sgdr.data import SequenceError, load_sequence, write_sequence
+from sgdr.synth import mpm
 from sgdr.synth.config import SynthConfig
+from sgdr.synth.objects import OBJECTS, build_object
+from sgdr.synth.render_gt import hemisphere_cameras, render_views, sensor_dict, surface_mesh
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +54,6 @@ def with_object_material(cfg: SynthConfig) -> SynthConfig:
     """`cfg` with every material setting left null (E, ν, v0, effects.stiff_ratio,
     effects.stiff_axis) replaced by the object's own (`sgdr.synth.objects.Material`); values set
     in the config win."""
-    from sgdr.synth.objects import OBJECTS
 
     m = OBJECTS.get_named(cfg.object).material
     e = cfg.effects
@@ -70,7 +74,6 @@ def with_object_material(cfg: SynthConfig) -> SynthConfig:
 def material_record(cfg: SynthConfig) -> dict:
     """The material of the generated object (cfg resolved by `with_object_material`): E, ν,
     density, law, and the E of every stiffness region with the rule that splits them."""
-    from sgdr.synth.objects import OBJECTS
 
     e = cfg.effects
     own = OBJECTS.get_named(cfg.object).material
@@ -95,7 +98,6 @@ def material_record(cfg: SynthConfig) -> dict:
 def effects_record(cfg: SynthConfig) -> dict:
     """The injected effects with their magnitudes, and which differ from the plain benchmark
     (the object's own heterogeneity, torus_hetero's, is not an injected effect)."""
-    from sgdr.synth.objects import OBJECTS
 
     cfg = with_object_material(cfg)
     e = cfg.effects
@@ -210,7 +212,6 @@ def simulate_drop(obj, cfg: SynthConfig, progress=None):
     under the paste), which bounced the object as if the plane were level: the paste's bounce on
     a 3° plane drifted 0.005 units downhill by frame 10, where a spring-mass model on the same
     plane drifts 0.03 (docs/discrepancy.md, "Seventh sitting")."""
-    from sgdr.synth import mpm
 
     cfg = with_object_material(cfg)
     dx = 1.0 / cfg.mpm_grid
@@ -275,8 +276,6 @@ def simulate_drop(obj, cfg: SynthConfig, progress=None):
 
 
 def cameras_for(cfg: SynthConfig):
-    from sgdr.synth.render_gt import hemisphere_cameras
-
     return hemisphere_cameras(
         cfg.n_views, cfg.resolution, cfg.camera_target, cfg.camera_radius, cfg.camera_fov,
         cfg.camera_elevation, GROUND_NORMAL,
@@ -298,7 +297,6 @@ def light_rig(cfg: SynthConfig) -> dict:
 def is_complete(out_dir, cfg: SynthConfig) -> bool:
     """True when out_dir holds a valid sequence with ground truth matching cfg's sizes and
     injected effects (a tilted ground's simulated in the plane's frame: `simulate_drop`)."""
-    from sgdr.data import SequenceError, load_sequence
 
     cfg = as_synth_config(cfg)
     try:
@@ -325,7 +323,6 @@ def as_synth_config(cfg) -> SynthConfig:
     """`cfg` as a SynthConfig dataclass (accepts the Hydra DictConfig node `cfg.synth`)."""
     if isinstance(cfg, SynthConfig):
         return cfg
-    from omegaconf import OmegaConf
 
     merged = OmegaConf.merge(OmegaConf.structured(SynthConfig), cfg)
     return OmegaConf.to_object(merged)
@@ -339,10 +336,6 @@ def generate_sequence(cfg: SynthConfig, out_dir, seed: int, progress: bool = Fal
     preset on a 2-core CPU (docs/benchmarks.md).
     """
     import mitsuba as mi
-
-    from sgdr.data import write_sequence
-    from sgdr.synth.objects import build_object
-    from sgdr.synth.render_gt import render_views, sensor_dict, surface_mesh
 
     cfg = with_object_material(as_synth_config(cfg))
     out_dir = Path(out_dir)

@@ -25,6 +25,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import gaussian_filter
+from scipy.spatial import cKDTree
 
 from sgdr.cameras import Camera
 
@@ -106,8 +108,6 @@ def surface_mesh(x, rest_colours, particle_volume, cell, sigma_cells, level) -> 
     particle_volume: rest volume per particle (scene units³); cell: density grid cell (scene
     units); sigma_cells: Gaussian blur in cells; level: iso-level relative to a full cell.
     """
-    from scipy.ndimage import gaussian_filter
-    from scipy.spatial import cKDTree
     from skimage.measure import marching_cubes
 
     x = np.asarray(x, dtype=np.float64)

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from sgdr.cameras import Camera
 
@@ -79,7 +80,6 @@ def camera_in(camera: Camera, A_to_B: Similarity, name: str | None = None) -> Ca
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:
     """[3, 3] rotation drawn uniformly (a normalised Gaussian quaternion)."""
-    from scipy.spatial.transform import Rotation
 
     q = rng.normal(size=4)
     return Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()

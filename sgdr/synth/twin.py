@@ -23,18 +23,24 @@ pipeline raises the recorded ground by the Gaussians' median scale otherwise).
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from sgdr.asset.predict import physical_params, predict
+from sgdr.asset.store import load_asset
+from sgdr.data import write_sequence
 from sgdr.observe.contact import hit_frame
 from sgdr.observe.images import upscaled
+from sgdr.physics import Ground
+from sgdr.posterior.rollouts import SAMPLE_KEYS, sample_values
+from sgdr.render.config import RenderConfig
 
 
 def twin_values(asset, truth: dict) -> dict:
     """The asset's parameter values with `truth` applied (see the module docstring): the same
     mapping the sampler uses for its samples (`sgdr.posterior.rollouts.sample_values`)."""
-    from sgdr.posterior.rollouts import SAMPLE_KEYS, sample_values
 
     unknown = sorted(set(truth) - set(SAMPLE_KEYS))
     if unknown:
@@ -64,13 +70,6 @@ def twin_sequence(
     {"log10_k": [N_A]} for a stiffness field of another shape (a heterogeneity injected into
     the twin; recorded in gt/effects.json). image_scale: the twin's images s times finer than the
     asset's cameras (`upscaled`; a likelihood that sees more, e.g. a tiny asset's calibration)."""
-    from dataclasses import replace
-
-    from sgdr.asset.predict import physical_params, predict
-    from sgdr.asset.store import load_asset
-    from sgdr.data import write_sequence
-    from sgdr.physics import Ground
-    from sgdr.render.config import RenderConfig
 
     asset = load_asset(asset_dir)
     true_physics = replace(asset.physics, **(physics or {}))

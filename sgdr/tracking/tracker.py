@@ -41,8 +41,12 @@ import subprocess
 import sys
 import time
 from collections.abc import Mapping
+from dataclasses import asdict, is_dataclass
 from pathlib import Path
 from typing import Any
+
+import yaml
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from sgdr.tracking.config import TrackingConfig
 
@@ -53,11 +57,9 @@ _MLFLOW_PARAM_MAX = 6000  # MLflow's limit on one parameter value's length
 
 def flatten_config(cfg: Any, prefix: str = "") -> dict[str, Any]:
     """Nested mappings (dicts, DictConfigs, dataclasses) -> {"a.b.c": leaf}; lists stay leaves."""
-    from dataclasses import asdict, is_dataclass
 
     if is_dataclass(cfg) and not isinstance(cfg, type):
         cfg = asdict(cfg)
-    from omegaconf import DictConfig, ListConfig, OmegaConf  # OmegaConf containers -> plain Python
 
     if isinstance(cfg, (DictConfig, ListConfig)):
         cfg = OmegaConf.to_container(cfg, resolve=True)
@@ -75,11 +77,9 @@ def flatten_config(cfg: Any, prefix: str = "") -> dict[str, Any]:
 
 
 def _to_plain(cfg: Any) -> Any:
-    from dataclasses import asdict, is_dataclass
 
     if is_dataclass(cfg) and not isinstance(cfg, type):
         return asdict(cfg)
-    from omegaconf import DictConfig, ListConfig, OmegaConf
 
     if isinstance(cfg, (DictConfig, ListConfig)):
         return OmegaConf.to_container(cfg, resolve=True)
@@ -236,7 +236,6 @@ class RunTracker:
 
     # ------------------------------------------------------------------ lifecycle
     def __enter__(self) -> RunTracker:
-        import yaml
 
         self.out_dir.mkdir(parents=True, exist_ok=True)
         (self.out_dir / "config.yaml").write_text(yaml.safe_dump(_to_plain(self.cfg), sort_keys=False))

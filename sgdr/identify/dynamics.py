@@ -63,6 +63,7 @@ import numpy as np
 from sgdr.arrays import scalar, to_numpy
 from sgdr.identify.adam import adam_from_numpy, adam_to_numpy, make_adam
 from sgdr.identify.config import ReconConfig
+from sgdr.identify.global_search import CHOICES, PopulationScorer, global_search, landscape, search_space
 from sgdr.loss import image_loss
 from sgdr.physics import PhysParams, SimState, SimulationUnstable, doubled_substeps, rollout, simulate_frame
 from sgdr.physics.laws import CONTACT_PARAMETERS
@@ -531,54 +532,8 @@ def fit_dynamics(
 
     # ---- 1. the start: the global search, or the coarse grid, or physics.*_init
     if start_info is None:
-        start_info = {"k_grid": {}, "search": {}, "values": {}}
-        if cfg.search.parameters:
-            from sgdr.identify.global_search import (
-                CHOICES,
-                PopulationScorer,
-                global_search,
-                landscape,
-                search_space,
-            )
-
-            space = search_space(cfg.search, physics_cfg, model, dt, n_t_final)
-            scorer = PopulationScorer(
-                model,
-                binding,
-                g,
-                base,
-                ground,
-                targets,
-                cameras,
-                dt,
-                n_t_final,
-                physics_cfg,
-                render_cfg,
-                lam,
-                cfg.search.image_scale,
-            )
-            init = {
-                n: scalar(getattr(base, n)) if n != "log10_k" else float(physics_cfg.log10_k_init) for n in space.names
-            }
-            found = global_search(scorer, space, init, cfg.search, seed, progress)
-            found.landscape = landscape(scorer, found, cfg.search, max(int(n_predict), n_fit), n_fit)
-            start_info["search"] = found.to_json()
-            start_info["values"] = CHOICES[cfg.search.choose](found)
-            start_info["search"]["choose"] = cfg.search.choose
-            start_info["search"]["chosen"] = start_info["values"]
-            log.info(
-                "dynamics: global search -> %s (best %s, loss %.5f)", start_info["values"], found.best, found.best_loss
-            )
-        elif cfg.log10_k_grid:
-            # the rollout loss is rugged in the global stiffness (bounces and contacts shift in time)
-            for value in cfg.log10_k_grid:
-                trial = _with_values(base, {"log10_k": float(value)})
-                start_info["k_grid"][f"{float(value):g}"] = rollout_loss(
-                    model, trial, binding, g, v0, ground, targets, cameras, dt, n_t0, physics_cfg, render_cfg, lam
-                )
-            best = min(start_info["k_grid"], key=start_info["k_grid"].get)
-            log.info("dynamics: uniform log10 k grid %s -> start at %s", start_info["k_grid"], best)
-            start_info["values"] = {"log10_k": float(best)}
+        start_info = _start(model, binding, g, v0, base, ground, targets, cameras, dt, n_t0, n_t_final, physics_cfg,
+                            cfg, render_cfg, lam, seed, progress, max(int(n_predict), n_fit))  # fmt: skip
     base = _with_values(base, start_info["values"])
     level = float(start_info["values"].get("log10_k", physics_cfg.log10_k_init))
 
@@ -630,49 +585,10 @@ def fit_dynamics(
 
     # ---- 3. the local stage on all fit frames
     eval_all = evaluate_on(None)
-    if resumed is not None:
-        eval_start = float(resumed[1]["eval_loss_initial"])
-    else:
-        eval_start = eval_all(base)
-        if ckpt is not None and cfg.checkpoint_every > 0:  # the start is saved: a resumed stage does not search again
-            ckpt.save(0, {"eval_loss_initial": np.float64(eval_start), "start_info": np.array(json.dumps(start_info))})
-    if chosen is not None and math.isinf(chosen):  # no field: the global values are the asset
-        final, trained = base.detach(), _Train(base.detach(), [], n_t_final, eval_start, -1)
-    else:
-        inputs = inputs_for(targets, prior_of(chosen))
-        opt = make_adam(
-            {name: (value, _lr(cfg, name)) for name, value in _start_values(base, physics_cfg, stiffness).items()}
-        )
-        start, pass_losses, n_t_floor, best = 0, [], 0, None
-        if int(cfg.eval_every) > 0:
-            best = (eval_start, -1, {name: to_numpy(dr.detach(opt[name])) for name in opt.keys()})
-        if resumed is not None and "pass_losses" in resumed[1]:  # (a step-0 checkpoint holds the start only)
-            start, arrays = resumed
-            adam_from_numpy(opt, arrays)
-            pass_losses = [float(x) for x in arrays["pass_losses"]]
-            n_t_floor = int(arrays["n_t_floor"])
-            if "best/loss" in arrays:
-                names = [
-                    k[len("best/") :] for k in arrays if k.startswith("best/") and k not in ("best/loss", "best/pass")
-                ]
-                best = (float(arrays["best/loss"]), int(arrays["best/pass"]), {k: arrays[f"best/{k}"] for k in names})
-        trained = _train(
-            inputs,
-            opt,
-            start,
-            iterations,
-            seed,
-            schedule,
-            n_t_floor,
-            eval_all,
-            best,
-            ckpt,
-            {"eval_loss_initial": np.float64(eval_start), "start_info": np.array(json.dumps(start_info))},
-            on_pass,
-            progress,
-            pass_losses,
-        )
-        final = trained.params
+    final, trained, eval_start = _local_stage(
+        base, start_info, chosen, resumed, ckpt, cfg, physics_cfg, stiffness, inputs_for, prior_of, targets,
+        iterations, seed, schedule, n_t_final, eval_all, on_pass, progress,
+    )  # fmt: skip
     eval_final = trained.eval_loss if math.isfinite(trained.eval_loss) else eval_all(final)
     return DynamicsResult(
         log10_k=to_numpy(final.log10_k).reshape(-1),
@@ -755,3 +671,72 @@ def _choose_prior(
         "holdout_losses": {f"{k:g}": v for k, v in losses.items()},
         "chosen": f"{chosen:g}",
     }
+
+
+def _start(model, binding, g, v0, base, ground, targets, cameras, dt, n_t0, n_t_final, physics_cfg, cfg, render_cfg,
+           lam, seed, progress, n_predict) -> dict:  # fmt: skip
+    """Step 1, the start: the global search of recon.search.parameters (its landscape's futures
+    compared up to frame n_predict), else the best of recon.log10_k_grid, else physics.*_init.
+    Returns the start's record {"k_grid", "search", "values"}."""
+    n_fit = len(targets)
+    start_info = {"k_grid": {}, "search": {}, "values": {}}
+    if cfg.search.parameters:
+        space = search_space(cfg.search, physics_cfg, model, dt, n_t_final)
+        scorer = PopulationScorer(model, binding, g, base, ground, targets, cameras, dt, n_t_final, physics_cfg,
+                                  render_cfg, lam, cfg.search.image_scale)  # fmt: skip
+        init = {n: scalar(getattr(base, n)) if n != "log10_k" else float(physics_cfg.log10_k_init) for n in space.names}
+        found = global_search(scorer, space, init, cfg.search, seed, progress)
+        found.landscape = landscape(scorer, found, cfg.search, n_predict, n_fit)
+        start_info["search"] = found.to_json()
+        start_info["values"] = CHOICES[cfg.search.choose](found)
+        start_info["search"]["choose"] = cfg.search.choose
+        start_info["search"]["chosen"] = start_info["values"]
+        log.info(
+            "dynamics: global search -> %s (best %s, loss %.5f)", start_info["values"], found.best, found.best_loss
+        )
+    elif cfg.log10_k_grid:
+        # the rollout loss is rugged in the global stiffness (bounces and contacts shift in time)
+        for value in cfg.log10_k_grid:
+            trial = _with_values(base, {"log10_k": float(value)})
+            start_info["k_grid"][f"{float(value):g}"] = rollout_loss(
+                model, trial, binding, g, v0, ground, targets, cameras, dt, n_t0, physics_cfg, render_cfg, lam
+            )
+        best = min(start_info["k_grid"], key=start_info["k_grid"].get)
+        log.info("dynamics: uniform log10 k grid %s -> start at %s", start_info["k_grid"], best)
+        start_info["values"] = {"log10_k": float(best)}
+    return start_info
+
+
+def _local_stage(base, start_info, chosen, resumed, ckpt, cfg, physics_cfg, stiffness, inputs_for, prior_of, targets,
+                 iterations, seed, schedule, n_t_final, eval_all, on_pass, progress):  # fmt: skip
+    """Step 3, the local Adam passes on all fit frames under the chosen prior (none when the
+    chosen strength is .inf: the start is the asset), resumed from `resumed` (a checkpoint's
+    (pass, arrays), or None). The start is checkpointed first, so a resumed stage does not
+    search again. Returns (final params, _Train, the start's all-view rollout loss)."""
+    if resumed is not None:
+        eval_start = float(resumed[1]["eval_loss_initial"])
+    else:
+        eval_start = eval_all(base)
+        if ckpt is not None and cfg.checkpoint_every > 0:
+            ckpt.save(0, {"eval_loss_initial": np.float64(eval_start), "start_info": np.array(json.dumps(start_info))})
+    if chosen is not None and math.isinf(chosen):  # no field: the global values are the asset
+        return base.detach(), _Train(base.detach(), [], n_t_final, eval_start, -1), eval_start
+    inputs = inputs_for(targets, prior_of(chosen))
+    opt = make_adam(
+        {name: (value, _lr(cfg, name)) for name, value in _start_values(base, physics_cfg, stiffness).items()}
+    )
+    start, pass_losses, n_t_floor, best = 0, [], 0, None
+    if int(cfg.eval_every) > 0:
+        best = (eval_start, -1, {name: to_numpy(dr.detach(opt[name])) for name in opt.keys()})
+    if resumed is not None and "pass_losses" in resumed[1]:  # (a step-0 checkpoint holds the start only)
+        start, arrays = resumed
+        adam_from_numpy(opt, arrays)
+        pass_losses = [float(x) for x in arrays["pass_losses"]]
+        n_t_floor = int(arrays["n_t_floor"])
+        if "best/loss" in arrays:
+            names = [k[len("best/") :] for k in arrays if k.startswith("best/") and k not in ("best/loss", "best/pass")]
+            best = (float(arrays["best/loss"]), int(arrays["best/pass"]), {k: arrays[f"best/{k}"] for k in names})
+    trained = _train(inputs, opt, start, iterations, seed, schedule, n_t_floor, eval_all, best, ckpt,
+                     {"eval_loss_initial": np.float64(eval_start), "start_info": np.array(json.dumps(start_info))},
+                     on_pass, progress, pass_losses)  # fmt: skip
+    return trained.params, trained, eval_start

@@ -32,6 +32,7 @@ from sgdr.posterior import predictive as pp
 from sgdr.posterior.likelihood import SilhouetteLikelihood
 from sgdr.posterior.rollouts import ROLLOUTS
 from sgdr.posterior.sample import LogProbability, Problem, diagnose, headline, kept_samples, run_ensembles
+from sgdr.report.html import add_section
 from sgdr.run_folder import run_asset_and_sequence
 
 log = logging.getLogger(__name__)
@@ -101,11 +102,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
         seed=cfg.seed,
         map_theta=problem.map_theta,
     )
-    gt = seq.gt_params() or {}
-    truth = {k: float(v) for k, v in (gt.get("truth") or {}).items() if k in problem.names} if gt.get("twin") else {}
-    if gt.get("twin") and Path(gt.get("asset", "")).resolve() == asset_dir.resolve():
-        for n, t in zip(problem.names, problem.map_theta):  # a twin of this asset: keys left out are its values
-            truth.setdefault(n, float(t))
+    truth = twin_truth(seq, asset_dir, problem)
     notes = []
     if "restitution" in problem.names and asset.physics.contact != "coulomb":
         notes.append(
@@ -149,7 +146,30 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
             "seconds": float(time.time() - t0),
         },
     }
-    record = strict_json(record)
+    record = write_outputs(strict_json(record), out, run_dir, seq, asset, problem, chains, log_probs, acceptance,
+                           kept, diag, pred, pred_centres, pred_stable, truth, t0)  # fmt: skip
+    if cfg.tracking.enabled:
+        record["mlflow_run_id"] = log_to_mlflow(run_dir, out, record)
+    return record
+
+
+def twin_truth(seq, asset_dir: Path, problem) -> dict:
+    """The true values of the sampled parameters when the sequence is a twin (its gt records
+    them; a twin of this very asset: the keys it left out are the asset's own values), else {}."""
+    gt = seq.gt_params() or {}
+    if not gt.get("twin"):
+        return {}
+    truth = {k: float(v) for k, v in (gt.get("truth") or {}).items() if k in problem.names}
+    if Path(gt.get("asset", "")).resolve() == asset_dir.resolve():
+        for n, t in zip(problem.names, problem.map_theta):
+            truth.setdefault(n, float(t))
+    return truth
+
+
+def write_outputs(record, out, run_dir, seq, asset, problem, chains, log_probs, acceptance, kept, diag, pred,
+                  pred_centres, pred_stable, truth, t0) -> dict:  # fmt: skip
+    """samples.npz, the corner, trace and band plots, the ensemble video, posterior.json and the
+    report's 'Posterior' section (when the run has a report)."""
     np.savez(
         out / "samples.npz",
         chains=chains,
@@ -168,12 +188,8 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     (out / "posterior.json").write_text(json.dumps(record, indent=1, allow_nan=False))
     report = run_dir / "report" / "report.html"
     if report.exists():
-        from sgdr.report.html import add_section
-
         add_section(report, pp.section(record, out))
         record["report"] = str(report)
-    if cfg.tracking.enabled:
-        record["mlflow_run_id"] = log_to_mlflow(run_dir, out, record)
     return record
 
 

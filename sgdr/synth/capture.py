@@ -262,7 +262,6 @@ def board_poses(camera: Camera, board: Board, n: int, tilt_deg: float, fill, rng
 # ---------------------------------------------------------------------------- writing
 def _write_capture(root: Path, cfg: RealCaptureSimConfig, seed: int, progress: bool) -> dict:
     """Write the whole capture into root; returns the timings (seconds per part)."""
-    import mitsuba as mi
 
     timings = {}
     obj_name = cfg.obj_name or cfg.object
@@ -320,8 +319,44 @@ def _write_capture(root: Path, cfg: RealCaptureSimConfig, seed: int, progress: b
         "max_depth": cfg.max_depth,
     }
 
-    # --- the video frames and their masks
     t0 = time.perf_counter()
+    plates, frame_files = _write_videos(root, cfg, seed, surface, frames_u, video_u, target, ground_z, light, rng_tex,
+                                        rng_noise, bar)  # fmt: skip
+    timings["video_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    S2D = _write_static_scan(root, cfg, obj_name, seed, surface, frames_u, particles_d, U2D, K_s, light, rng_tex,
+                             rng_reg, rng_noise, bar)  # fmt: skip
+    timings["static_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    poses = _write_boards(root, cfg, video_d, board, K_d, plates, rng_board, rng_noise, bar)
+    timings["boards_s"] = time.perf_counter() - t0
+    bar.close()
+
+    # --- sequence files, config.yaml and the truth
+    (root / "dynamic" / "sync.json").write_text(json.dumps({c: 0 for c in layout.CAMERAS}, indent=2))
+    seq = {"hit_frame": hit_frame, **{c: frame_files for c in layout.CAMERAS}}
+    path = layout.sequence_file(root, obj_name, cfg.seq)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(seq, indent=2))
+    gt = root / "gt"
+    gt.mkdir()
+    for f, x in enumerate(particles_d):
+        np.save(gt / f"particles_{f:03d}.npy", x.astype(np.float32))
+    np.save(gt / "particle_colours.npy", obj.colours.astype(np.float32))
+    frames = {"U2D": U2D, "S2D": S2D, "video": video_d, "K_s": K_s, "particles": particles_d}
+    truth = _truth(cfg, seed, info, hit_frame, frames, board, poses, rng_init, timings)
+    (gt / "truth.json").write_text(json.dumps(truth, indent=2))
+    _write_config_yaml(root / "config.yaml", cfg, obj_name, truth, particles_d)
+    marker = {"key": capture_key(cfg, seed), "timings": timings}
+    (root / layout.COMPLETE).write_text(json.dumps(marker, indent=2))
+    return timings
+
+
+def _write_videos(root, cfg, seed, surface, frames_u, video_u, target, ground_z, light, rng_tex, rng_noise, bar):
+    """The video frames of every camera (JPEG, exposed, noisy) with their masks, and the clean
+    background plates. Returns (the plates' linear images [V, H, W, 4], the frame file names)."""
+    import mitsuba as mi  # after the backend has chosen Mitsuba's variant
+
     sensors = [mi.load_dict(sensor_dict(c, cfg.video_spp)) for c in video_u]
     tex = table_texture(cfg.table_colour, cfg.table_texture, cfg.table_texture_cells, rng_tex)
     table = table_dict(target, ground_z, cfg.table_size, tex)
@@ -340,10 +375,17 @@ def _write_capture(root: Path, cfg: RealCaptureSimConfig, seed: int, progress: b
         image = expose(plates[v, ..., :3], cfg.video_exposure, cfg.video_wb, cfg.noise_sigma, rng_noise)
         write_jpeg(layout.background_plate(root, name), image, cfg.jpeg_quality)
     bar.update()
-    timings["video_s"] = time.perf_counter() - t0
+    return plates, frame_files
 
-    # --- the static scan: frame 0's shape on a raised table, in the static frame
-    t0 = time.perf_counter()
+
+def _write_static_scan(root, cfg, obj_name, seed, surface, frames_u, particles_d, U2D, K_s, light, rng_tex, rng_reg,
+                       rng_noise, bar):  # fmt: skip
+    """The static scan: frame 0's shape on a raised table, photographed on a ring, its masks and
+    the COLMAP model in the scan's own frame (a random similarity away from the dynamic frame).
+    Returns that similarity, static -> dynamic."""
+    import mitsuba as mi  # after the backend has chosen Mitsuba's variant
+
+    W_S, H_S = cfg.static_width, cfg.static_height
     rest = surface(frames_u[0])
     centre_u = frames_u[0].mean(0)
     static_light = light | {"target": centre_u}
@@ -374,10 +416,12 @@ def _write_capture(root: Path, cfg: RealCaptureSimConfig, seed: int, progress: b
     params = np.array([K_s[0, 0], K_s[1, 1], K_s[0, 2], K_s[1, 2]])
     write_colmap(colmap, {1: ColmapCamera("PINHOLE", W_S, H_S, params)}, images)
     _write_ply(colmap / "colmap_pcd.ply", U2S.apply(rest.vertices))
-    timings["static_s"] = time.perf_counter() - t0
+    return S2D
 
-    # --- checkerboards and the calibration file
-    t0 = time.perf_counter()
+
+def _write_boards(root, cfg, video_d, board, K_d, plates, rng_board, rng_noise, bar) -> dict:
+    """The checkerboard images of every video camera (the world board in its first pose, then
+    `realcap.board_views` random poses) and cameras_calib.json. Returns the poses per camera."""
     poses = {}
     for v, cam in enumerate(video_d):
         views = [(cam.R, cam.t)] + board_poses(
@@ -394,27 +438,7 @@ def _write_capture(root: Path, cfg: RealCaptureSimConfig, seed: int, progress: b
     )
     calib = {c.name: Calibration(K_d, np.zeros(5), cv2.Rodrigues(c.R)[0].reshape(3), c.t, 0.0) for c in video_d}
     write_cameras_calib(root / "dynamic" / "cameras_calib.json", calib)
-    timings["boards_s"] = time.perf_counter() - t0
-    bar.close()
-
-    # --- sequence files, config.yaml and the truth
-    (root / "dynamic" / "sync.json").write_text(json.dumps({c: 0 for c in layout.CAMERAS}, indent=2))
-    seq = {"hit_frame": hit_frame, **{c: frame_files for c in layout.CAMERAS}}
-    path = layout.sequence_file(root, obj_name, cfg.seq)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(seq, indent=2))
-    gt = root / "gt"
-    gt.mkdir()
-    for f, x in enumerate(particles_d):
-        np.save(gt / f"particles_{f:03d}.npy", x.astype(np.float32))
-    np.save(gt / "particle_colours.npy", obj.colours.astype(np.float32))
-    frames = {"U2D": U2D, "S2D": S2D, "video": video_d, "K_s": K_s, "particles": particles_d}
-    truth = _truth(cfg, seed, info, hit_frame, frames, board, poses, rng_init, timings)
-    (gt / "truth.json").write_text(json.dumps(truth, indent=2))
-    _write_config_yaml(root / "config.yaml", cfg, obj_name, truth, particles_d)
-    marker = {"key": capture_key(cfg, seed), "timings": timings}
-    (root / layout.COMPLETE).write_text(json.dumps(marker, indent=2))
-    return timings
+    return poses
 
 
 def _write_ply(path: Path, points) -> None:

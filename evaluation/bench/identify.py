@@ -21,6 +21,11 @@ import time
 
 import numpy as np
 
+import sgdr.backend as backend
+
+# Dr.Jit and the sgdr modules that import it: inside the functions, after `sgdr.backend.init`
+# (evaluation/bench/__init__.py says why).
+
 N_ANCHORS, N_K, N_SUB, N_FIT, FPS = 512, 64, 150, 20, 24.0
 N_GAUSSIANS, N_VIEWS, RES = 4000, 10, 64
 S = 8
@@ -29,8 +34,6 @@ SEED = 0
 
 
 def _scene():
-    import sgdr.backend as backend
-
     backend.init("llvm") if backend._current is None else None
     from sgdr.anchors.sampling import sample_anchors
     from sgdr.cameras import Camera

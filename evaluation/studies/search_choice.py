@@ -1,6 +1,6 @@
 """Which of the global search's candidates the asset should start from: a study on finished runs.
 
-    python -m evaluation.search_choice outputs/torus_small_s0 outputs/cross_small_s0 ...
+    python -m evaluation.studies.search_choice outputs/torus_small_s0 outputs/cross_small_s0 ...
 
 For each run folder whose dynamic stage searched (dynamics.json `search`), the candidates that fit
 within `--tolerance` (relative) of the best loss (at most `--top-k`, best first) are rolled out
@@ -25,6 +25,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
+
+import sgdr.backend as backend
+
+# Dr.Jit and the sgdr modules that import it: inside the functions, after `main` calls
+# `sgdr.backend.init` (Dr.Jit reads DRJIT_LIBLLVM_PATH, which init sets, when it is first imported).
 
 
 def study(run: Path, tolerance: float, top_k: int) -> dict:
@@ -93,8 +98,6 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--json", action="store_true", help="one JSON object per run on stdout")
     ap.add_argument("--threads", type=int, default=0, help="Dr.Jit threads (0: every core)")
     a = ap.parse_args(argv)
-    import sgdr.backend as backend
-
     backend.init("llvm", threads=a.threads or None)
     for run in a.runs:
         r = study(run, a.tolerance, a.top_k)

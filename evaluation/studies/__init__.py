@@ -1,6 +1,9 @@
 """Studies: each answers a question about the method, on sgdr's runs or its twins, rather than
 reconstructing an object. One module each, run as `python -m evaluation.studies.<name>`:
 
+- `oracle` (+ its config schema `config`): the spring-mass model fitted to the generator's
+  particle tracks, an upper bound on identification from images (`experiments/oracle.py`,
+  `make oracle`: a Hydra driver like the others);
 - `baseline_twins`: the Table 2 baselines on their twins, with variants;
 - `calibrate_posterior`: simulation-based calibration of the posterior on twin sequences;
 - `posterior_objects`: the posterior on the seven MPM objects (coverage, future CD);

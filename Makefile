@@ -83,8 +83,8 @@ diagnose:
 # Hours at small on 2 cores; results in results/diagnose_suite_<preset>.jsonl. MAX_CASES=n stops after n.
 MAX_CASES ?= 0
 diagnose-suite:
-	$(PYTHON) -m evaluation.diagnose_suite --preset $(PRESET) --max-cases $(MAX_CASES)
-	$(PYTHON) -m evaluation.diagnose_suite --preset $(PRESET) --summary
+	$(PYTHON) -m evaluation.studies.diagnose_suite --preset $(PRESET) --max-cases $(MAX_CASES)
+	$(PYTHON) -m evaluation.studies.diagnose_suite --preset $(PRESET) --summary
 
 clean:
 	rm -rf outputs multirun .pytest_cache

@@ -1,5 +1,5 @@
 """Fit the spring-mass model to a generated sequence's ground-truth particle tracks: how far
-identification could go if rendering, static fit and v0 were perfect (`sgdr.studies.oracle`).
+identification could go if rendering, static fit and v0 were perfect (`evaluation.studies.oracle`).
 
     python experiments/oracle.py preset=small synth.object=torus
 
@@ -7,7 +7,8 @@ Uses the same sequence as `experiments/reconstruct.py` (generated when missing),
 N_A, n_k and physics, and the dynamic stage's learning rates. Writes `oracle.json`,
 `oracle.png`, `log10_k.npy` and `tracks.npz` (simulated and true anchor tracks [T, N_A, 3]) to
 `<recon.output_dir>/<run name>_oracle/`; the last line printed is one JSON object with the
-oracle's fit / future scores beside the physics-free baseline's.
+oracle's fit / future scores beside the physics-free baseline's. The config is sgdr's plus the
+`oracle` section (`evaluation.studies.config.StudyConfig`).
 """
 
 from __future__ import annotations
@@ -24,25 +25,22 @@ from omegaconf import DictConfig, OmegaConf
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import sgdr.backend  # noqa: E402
-import sgdr.config  # noqa: E402
-from sgdr.cli import user_errors
-from sgdr.config import validate
+from evaluation.studies import config as study_config  # noqa: E402
+from evaluation.studies.oracle import oracle_study, plot_oracle  # noqa: E402
+from sgdr.cli import user_errors  # noqa: E402
+from sgdr.data import load_sequence  # noqa: E402
+from sgdr.run_folder import default_run_name, ensure_sequence  # noqa: E402
 
-sgdr.config.register()
+study_config.register()  # sgdr's schema with the `oracle` section (sgdr.config.register's, extended)
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
-
     with user_errors():
         sgdr.backend.init(cfg.backend, cfg.threads or None)
-        from sgdr.data import load_sequence
-        from sgdr.run_folder import default_run_name, ensure_sequence
-        from sgdr.studies.oracle import oracle_study, plot_oracle
-
         logging.getLogger("sgdr").setLevel(logging.INFO)
         c = OmegaConf.to_object(cfg)
-        validate(c)
+        study_config.validate(c)
         seq = load_sequence(ensure_sequence(c))
         result = oracle_study(
             seq, c.anchors.n_anchors, c.anchors.n_k, c.physics, c.recon, c.oracle, seed=c.seed, progress=True

@@ -29,8 +29,6 @@ from sgdr.render import config as render_config
 from sgdr.render.config import RenderConfig
 from sgdr.static_fit import config as static_fit_config
 from sgdr.static_fit.config import StaticFitConfig
-from sgdr.studies import config as oracle_config
-from sgdr.studies.config import OracleConfig
 from sgdr.synth import capture_config as realcap_config
 from sgdr.synth import config as synth_config
 from sgdr.synth.capture_config import RealCaptureSimConfig
@@ -57,7 +55,6 @@ class Config:
     static_fit: StaticFitConfig = field(default_factory=StaticFitConfig)
     synth: SynthConfig = field(default_factory=SynthConfig)
     recon: ReconConfig = field(default_factory=ReconConfig)
-    oracle: OracleConfig = field(default_factory=OracleConfig)  # experiments/oracle.py (sgdr.studies.oracle)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     posterior: PosteriorConfig = field(default_factory=PosteriorConfig)  # experiments/posterior.py
     diagnose: DiagnoseConfig = field(default_factory=DiagnoseConfig)  # experiments/diagnose.py
@@ -88,7 +85,6 @@ SECTION_CHECKS = {
     "recon": recon_config.CHECKS,
     "recon.simulate": simulate_config.SIMULATE_CHECKS,
     "recon.search": recon_config.SEARCH_CHECKS,
-    "oracle": oracle_config.CHECKS,
     "tracking": tracking_config.CHECKS,
     "posterior": posterior_config.CHECKS,
     "diagnose": diagnose_config.CHECKS,
@@ -177,14 +173,15 @@ RULES = (
 )
 
 
-def validate(cfg) -> None:
+def validate(cfg, section_checks: dict = SECTION_CHECKS) -> None:
     """Check every config value (`CHECKS`, `SECTION_CHECKS`) and the rules between them (`RULES`)
     before any work; raise one `ConfigError` listing every problem, each naming its key.
 
     cfg: the composed config (a `Config` instance or a DictConfig).
+    section_checks: the sections' checks (default sgdr's; a schema extending `Config` passes its own).
     """
     problems = section_problems("", cfg, CHECKS)
-    for path, checks in SECTION_CHECKS.items():
+    for path, checks in section_checks.items():
         section = cfg
         for part in path.split("."):
             section = getattr(section, part)

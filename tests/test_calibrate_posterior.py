@@ -1,10 +1,10 @@
-"""The calibration study's bookkeeping (evaluation/calibrate_posterior.py): truths drawn inside
+"""The calibration study's bookkeeping (evaluation/studies/calibrate_posterior.py): truths drawn inside
 the prior's middle, SBC ranks, coverage and rank histograms."""
 
 import numpy as np
 import pytest
 
-from evaluation.calibrate_posterior import N_BINS, draw_truth, sbc_rank, summarise
+from evaluation.studies.calibrate_posterior import N_BINS, draw_truth, sbc_rank, summarise
 from sgdr.posterior.config import PriorConfig
 
 
@@ -44,7 +44,7 @@ def test_a_record_of_another_sampler_setup_is_refused_before_any_work(tmp_path):
 
     from omegaconf import OmegaConf
 
-    from evaluation.calibrate_posterior import calibrate
+    from evaluation.studies.calibrate_posterior import calibrate
     from sgdr.config import compose
 
     cfg = OmegaConf.to_object(compose(["preset=tiny", f"posterior.run={tmp_path / 'no_run'}"]))
@@ -61,7 +61,7 @@ def _append_cases(record_file, setup, cases):
     import time
     from pathlib import Path
 
-    from evaluation.calibrate_posterior import locked_record
+    from evaluation.studies.calibrate_posterior import locked_record
 
     for case in cases:
         with locked_record(Path(record_file), setup) as record:
@@ -74,7 +74,7 @@ def test_shards_merge_their_cases_into_one_record(tmp_path):
     import json
     import multiprocessing as mp
 
-    from evaluation.calibrate_posterior import parse_shard
+    from evaluation.studies.calibrate_posterior import parse_shard
 
     assert parse_shard(None) == (0, 1) and parse_shard("1/2") == (1, 2)
     for bad in ("2/2", "1", "a/b", "0/0"):

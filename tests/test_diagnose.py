@@ -225,10 +225,10 @@ def test_drag_is_named_and_the_driver_prints_json(tiny):
 
 
 def test_the_profile_command_scores_settings_and_replaced_values(tiny):
-    """evaluation/discrepancy_profile.py: the run's own model against a moved ground on its own
+    """evaluation/studies/discrepancy_profile.py: the run's own model against a moved ground on its own
     sequence (fitted on the recorded ground, so moving it costs), the same values read back from the
     run's dynamic stage give the same D, and a setting that is not physics.* is refused."""
-    from evaluation.discrepancy_profile import identified_values, main, profile
+    from evaluation.studies.discrepancy_profile import identified_values, main, profile
 
     _, overrides, run_dir, size = tiny
     cfg = OmegaConf.to_object(compose([*overrides, f"diagnose.run={run_dir}"]))

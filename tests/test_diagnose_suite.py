@@ -1,4 +1,4 @@
-"""The diagnosis suite's bookkeeping (evaluation/diagnose_suite.py): the default cases meet the
+"""The diagnosis suite's bookkeeping (evaluation/studies/diagnose_suite.py): the default cases meet the
 issue's counts and mix nulls and effects early, a rerun skips finished cases and retries failed
 ones, effect sizes are measured from a case's truth, and the bars are computed from the records."""
 
@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from evaluation import diagnose_suite as S
+from evaluation.studies import diagnose_suite as S
 
 
 def test_default_suite_counts_and_order():

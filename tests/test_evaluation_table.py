@@ -1,8 +1,8 @@
-"""The results table of `python -m evaluation.table` (the seven-object table of docs/reconstruction-results.md)."""
+"""The results table of `python -m evaluation.reproduce.run_table` (the seven-object table of docs/reconstruction-results.md)."""
 
 import json
 
-from evaluation.table import table
+from evaluation.reproduce.run_table import table
 
 
 def test_table_has_a_row_per_run_and_marks_missing_ones(tmp_path):

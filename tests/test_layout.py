@@ -70,3 +70,14 @@ def test_no_private_name_crosses_packages():
         if n.startswith("_") and _room(target) != room
     ]
     assert not crossing, "private names imported across packages:\n" + "\n".join(crossing)
+
+
+def test_the_product_imports_no_research():
+    research = [
+        f"{path.relative_to(ROOT)}:{node.lineno}"
+        for path in sorted(SGDR.rglob("*.py"))
+        for node in ast.walk(ast.parse(path.read_text()))
+        if (isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "evaluation")
+        or (isinstance(node, ast.Import) and any(a.name.split(".")[0] == "evaluation" for a in node.names))
+    ]
+    assert not research, f"sgdr modules that import evaluation/: {research}"

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
+from evaluation.studies.config import OracleConfig
 from sgdr.config import compose
 from sgdr.pipeline.run import STAGES, run_pipeline
 from tests.browser import assert_report_reads_well
@@ -285,8 +286,10 @@ def test_drivers_run_on_the_tiny_preset(tiny_run):
     oracle_dir = Path(cfg.recon.output_dir) / "torus_tiny_s0_oracle"
     assert (oracle_dir / "oracle.png").stat().st_size > 0
     record = json.loads((oracle_dir / "oracle.json").read_text())
-    assert [row["offset"] for row in record["k_offset_scan"]] == cfg.oracle.k_offsets
-    assert set(record["ensemble"]["offsets"]) <= set(cfg.oracle.k_offsets)
+    offsets = record["config"]["oracle"]["k_offsets"]  # the study's section, recorded with the run
+    assert offsets == OracleConfig().k_offsets  # no preset or method sets it
+    assert [row["offset"] for row in record["k_offset_scan"]] == offsets
+    assert set(record["ensemble"]["offsets"]) <= set(offsets)
     with np.load(oracle_dir / "tracks.npz") as saved:
         assert saved["simulated"].shape == saved["tracks"].shape and saved["tracks"].shape[2] == 3
 

@@ -85,7 +85,7 @@ def test_reader_gives_the_true_cameras_and_scene(capture, tmp_path):
 
 @pytest.mark.slow
 def test_simulated_capture_reconstructs_within_the_bounds(capture, tmp_path):
-    from evaluation.realcap_check import check
+    from evaluation.studies.realcap_check import check
     from sgdr.pipeline.run import run_pipeline
 
     root, _ = capture

@@ -1,4 +1,4 @@
-"""The simulated real capture (sgdr.realcap, issue 17 parts 2-3) and the real-capture tools.
+"""The simulated real capture (sgdr.synth.capture, issue 17 parts 2-3) and the real-capture tools.
 
 One tiny capture is written once for the module by the driver (`experiments/simulate_capture.py
 preset=tiny`, a subprocess: the driver's smoke test too). On it:

@@ -1,13 +1,17 @@
-"""The oracle fit (`sgdr.studies.oracle`) on tracks the spring-mass simulator made itself: it must
+"""The oracle fit (`evaluation.studies.oracle`) on tracks the spring-mass simulator made itself: it must
 find the stiffness that made them and predict their future better than any physics-free
 continuation (a model fitted to its own class has no excuse)."""
 
 import numpy as np
+import pytest
+from omegaconf import OmegaConf
 
+from evaluation.studies.config import CHECKS, OracleConfig, StudyConfig, validate
+from evaluation.studies.oracle import fit_tracks, offset_scan, score_tracks, tracked_anchor_index
 from sgdr.asset.predict import physical_params
+from sgdr.checks import ConfigError
 from sgdr.identify.config import ReconConfig
 from sgdr.physics import Ground, PhysicsConfig, SimState, build_spring_model, rollout
-from sgdr.studies.oracle import fit_tracks, offset_scan, score_tracks, tracked_anchor_index
 
 
 def _twin_tracks(cfg, n_frames=10, fps=24.0):
@@ -65,3 +69,17 @@ def test_tracked_anchors_are_particles():
     p = rng.uniform(0, 1, (500, 3))
     idx = tracked_anchor_index(p, 32, seed=0)
     assert idx.shape == (32,) and len(set(idx.tolist())) == 32
+
+
+def test_the_oracle_config_is_checked_like_sgdrs():
+    """The study's schema (sgdr's plus `oracle`): every oracle field but the bools has a check,
+    sgdr's checks still apply, and a bad value fails naming its key."""
+    fields = {n for n, v in vars(OracleConfig()).items() if not isinstance(v, bool)}
+    assert set(CHECKS) == fields
+    validate(StudyConfig())
+    bad = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(StudyConfig), {"oracle": {"iterations": 0}}))
+    with pytest.raises(ConfigError, match="oracle.iterations=0"):
+        validate(bad)
+    bad.oracle.iterations, bad.anchors.n_k = 1, 0
+    with pytest.raises(ConfigError, match="anchors.n_k"):
+        validate(bad)

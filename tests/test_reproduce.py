@@ -13,17 +13,11 @@ import math
 
 import pytest
 
-from evaluation import reproduce as rp
-from evaluation.reproduce import (
-    MEAN,
-    OBJECTS,
-    TABLES,
-    collect,
-    needed_cells,
-    plan_multiruns,
-    run_dir_name,
-    write_tables,
-)
+from evaluation.reproduce.cells import DEFAULT_METHOD, collect, run_dir_name
+from evaluation.reproduce.cli import main
+from evaluation.reproduce.formats import write_tables
+from evaluation.reproduce.launch import needed_cells, plan_multiruns
+from evaluation.reproduce.tables import MEAN, OBJECTS, TABLES
 
 SCORES = ("fit_cd", "fit_emd", "fit_psnr", "fit_ssim", "future_cd", "future_emd", "future_psnr", "future_ssim")
 
@@ -56,9 +50,10 @@ def by_key(res):
 def test_run_dir_name_is_the_pipelines_rule():
     from types import SimpleNamespace
 
-    from sgdr.run_folder import DEFAULT_METHOD, default_run_name
+    from sgdr.run_folder import DEFAULT_METHOD as RUN_DEFAULT_METHOD
+    from sgdr.run_folder import default_run_name
 
-    assert DEFAULT_METHOD == rp.DEFAULT_METHOD
+    assert RUN_DEFAULT_METHOD == DEFAULT_METHOD
     for method in ("spring_gaus", "pacnerf"):
         cfg = SimpleNamespace(
             method=method,
@@ -187,7 +182,7 @@ def test_multirun_through_submitit_local_fills_its_cells(tmp_path, capsys):
         "recon.refine_iterations=10",
         "recon.v0_iterations=8",
     ]
-    assert rp.main(argv) == 0
+    assert main(argv) == 0
     printed = capsys.readouterr().out
     assert "[reproduce] 1/2 " in printed and "[reproduce] 2/2 " in printed  # a progress line per cell
     assert "launcher submitit_local" in printed
@@ -211,6 +206,6 @@ def test_multirun_through_submitit_local_fills_its_cells(tmp_path, capsys):
     assert any("reconstruct.py -m" in c and "hydra/launcher=submitit_local" in c for c in data["multirun_commands"])
 
     # a second call skips the finished cells and runs nothing
-    assert rp.main(argv) == 0
+    assert main(argv) == 0
     again = capsys.readouterr().out
     assert "2/2 cells finished before, skipped" in again and "multirun:" not in again

@@ -1,6 +1,6 @@
 """Known-motion cases for the dynamic-reconstruction baselines: a cube of Gaussians moved by a known motion and
 rendered by sgdr's own splatting renderer, so the true centres of every frame are known
-(tests/test_baselines_dynrecon.py, evaluation/baseline_twins.py).
+(tests/test_baselines_dynrecon.py, evaluation/studies/baseline_twins.py).
 
 The cube: `n_gaussians` isotropic Gaussians (scale 0.02, opacity 0.9, a colour gradient along
 the three axes) uniform in a cube of side 0.16 around (0.5, 0.5, 0.2), seen by 4 cameras of

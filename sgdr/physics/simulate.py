@@ -49,7 +49,7 @@ k_i = 10^log10_k_i and softplus(κ) are always recorded AD (once per frame). The
 Memory: per anchor and substep the tape keeps x, v and f (36 bytes; the gather op's own tape;
 tests/test_physics_memory.py measures 36-40 B marginal on LLVM for both adjoints), nothing per spring, so independent of n_k. A `full` gradient therefore costs about
 n_frames x n_t x N_A x 40 B: 164 MB at paper scale for 20 frames x 100 substeps x 2048 anchors
-(490 MB at 30 x 200); the process peak is measured by evaluation/bench_sim.py (docs/benchmarks.md,
+(490 MB at 30 x 200); the process peak is measured by evaluation/bench/sim.py (docs/benchmarks.md,
 "Simulator"), far under the 4 GiB bar. So no per-frame checkpointing is needed for memory.
 
 `truncated` (official) starts every frame after the first from the detached previous state:

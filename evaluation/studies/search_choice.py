@@ -1,6 +1,6 @@
 """Which of the global search's candidates the asset should start from: a study on finished runs.
 
-    python -m evaluation.search_choice outputs/torus_small_s0 outputs/cross_small_s0 ...
+    python -m evaluation.studies.search_choice outputs/torus_small_s0 outputs/cross_small_s0 ...
 
 For each run folder whose dynamic stage searched (dynamics.json `search`), the candidates that fit
 within `--tolerance` (relative) of the best loss (at most `--top-k`, best first) are rolled out
@@ -26,14 +26,19 @@ from pathlib import Path
 
 import numpy as np
 
+import sgdr.backend as backend
+
+# Dr.Jit and the sgdr modules that import it: inside the functions, after `main` calls
+# `sgdr.backend.init` (Dr.Jit reads DRJIT_LIBLLVM_PATH, which init sets, when it is first imported).
+
 
 def study(run: Path, tolerance: float, top_k: int) -> dict:
+    from sgdr.asset.predict import physical_params
+    from sgdr.asset.store import load_asset
     from sgdr.data import load_sequence
     from sgdr.evaluate.geometry import chamfer_distance
     from sgdr.physics import Ground
     from sgdr.physics.batched import batched_centres, batched_rollout
-    from sgdr.pipeline.asset import load_asset
-    from sgdr.pipeline.predict import physical_params
 
     dyn = json.loads((run / "dynamics" / "dynamics.json").read_text())
     search = dyn.get("search") or {}
@@ -93,8 +98,6 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--json", action="store_true", help="one JSON object per run on stdout")
     ap.add_argument("--threads", type=int, default=0, help="Dr.Jit threads (0: every core)")
     a = ap.parse_args(argv)
-    import sgdr.backend as backend
-
     backend.init("llvm", threads=a.threads or None)
     for run in a.runs:
         r = study(run, a.tolerance, a.top_k)

@@ -31,6 +31,11 @@ import time
 
 import numpy as np
 
+import sgdr.backend as backend
+
+# Dr.Jit and the sgdr modules that import it: inside the functions, after `sgdr.backend.init`
+# (evaluation/bench/__init__.py says why).
+
 N_ANCHORS, N_K, N_SUB, N_FRAMES, FPS = 512, 64, 100, 30, 24.0
 SIZES = (1, 8, 32)
 REPS = 3
@@ -38,9 +43,7 @@ SEED = 0
 
 
 def _asset():
-    import sgdr.backend as backend
-
-    backend.init("llvm") if backend._current is None else None
+    backend.current()  # the LLVM backend unless a driver chose one
     from sgdr.anchors.sampling import sample_anchors
     from sgdr.physics import Ground, PhysicsConfig, PhysParams, build_spring_model
     from sgdr.synth.objects import placed_sdf
@@ -72,10 +75,9 @@ def _singles(cfg, model, params, ground, samples: dict, n_frames: int = N_FRAMES
     import drjit as dr
 
     from sgdr.arrays import to_numpy
-    from sgdr.backend import ad
     from sgdr.physics import SimState, rollout
 
-    t = ad()
+    t = backend.ad()
     out = []
     base_k = to_numpy(params.log10_k, np.float32)
     with dr.suspend_grad():
@@ -149,9 +151,7 @@ def _past_bound(cfg, model, params, ground, rng, log) -> dict:
 
 
 def run() -> dict:
-    import sgdr.backend as backend
-
-    b = backend.init("llvm") if backend._current is None else backend.current()
+    b = backend.current()
     from sgdr.physics.batched import batched_rollout
 
     log = lambda msg: print(f"[bench posterior] {msg}", file=sys.stderr, flush=True)  # noqa: E731

@@ -1,7 +1,7 @@
 """What the diagnosis's refits buy in the future: CD and EMD before and after (issue 15, §7).
 
-    python -m evaluation.refit_gain outputs/torus_small_s0 outputs/cream_small_s0 ...
-    python -m evaluation.refit_gain --objects torus,cross,cream,apple,paste,chess,banana --preset small
+    python -m evaluation.studies.refit_gain outputs/torus_small_s0 outputs/cream_small_s0 ...
+    python -m evaluation.studies.refit_gain --objects torus,cross,cream,apple,paste,chess,banana --preset small
 
 For each finished run with a diagnosis (`<run>/diagnose/diagnosis.json`, `make diagnose`) the
 asset is rolled out over every frame three ways and scored against the sequence's ground-truth
@@ -23,11 +23,16 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+import sgdr.backend
+from evaluation import ROOT
+
+# Dr.Jit and the sgdr modules that import it: inside the functions, after `main` calls
+# `sgdr.backend.init` (Dr.Jit reads DRJIT_LIBLLVM_PATH, which init sets, when it is first imported).
 
 
 def _replacements(ctx, names_values: dict) -> dict:
@@ -46,10 +51,10 @@ def score_run(run_dir: Path, threads: int = 0) -> dict:
     """The future CD / EMD of the asset, its refit, and its refit with the best candidate."""
     from sgdr.discrepancy.candidates import CANDIDATES, Context
     from sgdr.evaluate.geometry import chamfer_distance, earth_movers_distance
+    from sgdr.observe.silhouette import CentreMap
     from sgdr.physics import Ground
-    from sgdr.posterior.likelihood import CentreMap
     from sgdr.posterior.rollouts import loop_rollout
-    from sgdr.posterior.run import run_asset_and_sequence
+    from sgdr.run_folder import run_asset_and_sequence
 
     diag_file = run_dir / "diagnose" / "diagnosis.json"
     if not diag_file.exists():
@@ -71,8 +76,6 @@ def score_run(run_dir: Path, threads: int = 0) -> dict:
         return Context(dict(asset.values), asset.physics, np.asarray(asset.anchors, float), size, times)
 
     def future_scores(values: dict, settings: dict) -> dict:
-        from dataclasses import replace
-
         cfg = replace(asset.physics, **settings)
         pos, stable = loop_rollout(
             model, {**asset.values, **values}, {"log10_k_shift": np.zeros(1)}, ground, seq.n_frames,
@@ -124,8 +127,6 @@ def main(argv=None) -> int:
     p.add_argument("--preset", default="small")
     p.add_argument("--out", default="", help="also write the JSON here")
     args = p.parse_args(argv)
-    import sgdr.backend
-
     sgdr.backend.init("llvm", None)
     runs = [Path(r) for r in args.runs]
     runs += [ROOT / "outputs" / f"{o}_{args.preset}_s0" for o in args.objects.split(",") if o]

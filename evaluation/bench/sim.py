@@ -27,18 +27,23 @@ import statistics
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
+import sgdr.backend as backend
+
+# Dr.Jit and the sgdr modules that import it: inside the functions, after `sgdr.backend.init`
+# (evaluation/bench/__init__.py says why).
+
+ROOT = Path(__file__).resolve().parents[2]  # the repository: the child process's working directory
 FPS = 30.0
 N_SUB = 100
 SEED = 0
 
 
 def _system(n_anchors: int, n_k: int, **cfg_overrides):
-    import sgdr.backend as backend
-
-    backend.init("llvm") if backend._current is None else None
+    backend.current()  # the LLVM backend unless a driver chose one
     from sgdr.physics import Ground, PhysicsConfig, PhysParams, SimState, build_spring_model
 
     rng = np.random.default_rng(SEED)
@@ -175,7 +180,7 @@ def peak_memory_child(n_anchors: int, n_k: int, n_frames: int) -> dict:
 
 def _peak_memory(n_anchors: int, n_k: int, n_frames: int) -> dict:
     code = (
-        "import json, evaluation.bench_sim as b; "
+        "import json, evaluation.bench.sim as b; "
         f"print(json.dumps(b.peak_memory_child({n_anchors}, {n_k}, {n_frames})))"
     )
     out = subprocess.run(
@@ -183,15 +188,13 @@ def _peak_memory(n_anchors: int, n_k: int, n_frames: int) -> dict:
         capture_output=True,
         text=True,
         check=True,
-        cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+        cwd=ROOT,
     )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def run() -> dict:
-    import sgdr.backend as backend
-
-    b = backend.init("llvm") if backend._current is None else backend.current()
+    b = backend.current()
     log = lambda msg: print(f"[bench sim] {msg}", file=sys.stderr, flush=True)  # noqa: E731
     log("forward 2048 x 256")
     big = _forward(2048, 256, reps=3)

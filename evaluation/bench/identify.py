@@ -21,6 +21,11 @@ import time
 
 import numpy as np
 
+import sgdr.backend as backend
+
+# Dr.Jit and the sgdr modules that import it: inside the functions, after `sgdr.backend.init`
+# (evaluation/bench/__init__.py says why).
+
 N_ANCHORS, N_K, N_SUB, N_FIT, FPS = 512, 64, 150, 20, 24.0
 N_GAUSSIANS, N_VIEWS, RES = 4000, 10, 64
 S = 8
@@ -29,16 +34,14 @@ SEED = 0
 
 
 def _scene():
-    import sgdr.backend as backend
-
-    backend.init("llvm") if backend._current is None else None
+    backend.current()  # the LLVM backend unless a driver chose one
     from sgdr.anchors.sampling import sample_anchors
     from sgdr.cameras import Camera
     from sgdr.gaussians.model import Gaussians
-    from sgdr.identify.common import posed, render_rgb_numpy, to_tensor
     from sgdr.identify.global_search import PopulationScorer
     from sgdr.physics import Ground, PhysicsConfig, PhysParams, SimState, build_spring_model, rollout
     from sgdr.render.config import RenderConfig
+    from sgdr.render.images import posed, render_rgb_numpy, to_tensor
     from sgdr.skin import IDWBinding
     from sgdr.synth.objects import placed_sdf
 

@@ -1,10 +1,10 @@
 """The Table 2 baselines (simplified Dy-Gaus, simplified 4D-Gaus) on their twins, with variants.
 
-    python -m evaluation.baseline_twins            # every variant, ~3 min on 2 cores
-    python -m evaluation.baseline_twins dyngaus    # one baseline's variants
+    python -m evaluation.studies.baseline_twins            # every variant, ~3 min on 2 cores
+    python -m evaluation.studies.baseline_twins dyngaus    # one baseline's variants
 
 Prints one JSON line per variant: the twin, the changed settings, the mean centre error over the
-mean motion since frame 0 per moving frame (`sgdr.baselines.twin.Twin.error_ratio`), the last
+mean motion since frame 0 per moving frame (`sgdr.baselines.known_motion.Twin.error_ratio`), the last
 image loss and the wall time. The sizes are the tests' (tests/test_baselines_dynrecon.py); the
 method is the schema's default (conf/method) unless the variant changes it. docs/baselines.md
 holds the measured numbers.
@@ -17,11 +17,15 @@ import sys
 import time
 from dataclasses import replace
 
+import sgdr.backend as backend
+from sgdr.baselines.config import Deform4DConfig, DynGausConfig
+
+# Dr.Jit and the sgdr modules that import it: inside `main`, after its `sgdr.backend.init`
+# (Dr.Jit reads DRJIT_LIBLLVM_PATH, which init sets, when it is first imported).
+
 
 def variants():
     """(baseline, twin, label, config) of every measured variant."""
-    from sgdr.baselines.config import Deform4DConfig, DynGausConfig
-
     dyn = DynGausConfig(iterations=80, n_neighbours=8)
     d4 = Deform4DConfig(iterations=30, warmup_iterations=40, grid_resolution=6)
     return [
@@ -38,19 +42,17 @@ def variants():
 
 
 def main(argv: list[str]) -> None:
-    import sgdr.backend as backend
-
     backend.init("llvm")
     from sgdr.baselines.deform4d import fit_deformation
     from sgdr.baselines.dyngaus import track_gaussians
-    from sgdr.baselines.twin import cube_twin
+    from sgdr.baselines.known_motion import known_motion_cube
 
     fits = {"dyngaus": track_gaussians, "deform4d": fit_deformation}
     twins = {}
     for baseline, twin_name, label, cfg in variants():
         if argv and baseline not in argv:
             continue
-        twin = twins.setdefault(twin_name, cube_twin(twin_name))
+        twin = twins.setdefault(twin_name, known_motion_cube(twin_name))
         start = time.perf_counter()
         res = fits[baseline](twin.gaussians, twin.targets, twin.cameras, twin.render_cfg, cfg, seed=0)
         seconds = time.perf_counter() - start

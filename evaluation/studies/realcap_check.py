@@ -1,6 +1,6 @@
 """How well a reconstruction of a simulated real capture recovered the truth (gt/truth.json).
 
-    python -m evaluation.realcap_check outputs/cap_tiny_s0 /tmp/cap
+    python -m evaluation.studies.realcap_check outputs/cap_tiny_s0 /tmp/cap
 
 Prints one JSON object:
 - registration: rotation error (degrees), relative scale error, and the translation error as the

@@ -1,6 +1,6 @@
 """Benchmark runner: `python -m evaluation.bench [NAME ...]` (or `make bench BENCH=NAME`).
 
-Each benchmark is a module `evaluation/bench_<name>.py` with `run() -> dict`; the runner prints
+Each benchmark is a module `evaluation/bench/<name>.py` with `run() -> dict`; the runner prints
 one JSON object per benchmark on its own line (`{"bench": name, ...}`) and nothing else on
 stdout (progress goes to stderr). Benchmarks warm up, separate compile time from kernel time,
 report medians and compare against a reference measured in the same run.
@@ -15,10 +15,12 @@ import sys
 import traceback
 from pathlib import Path
 
+HERE = Path(__file__).resolve().parent
+
 
 def available() -> list[str]:
-    here = Path(__file__).resolve().parent
-    return sorted(m.name[len("bench_") :] for m in pkgutil.iter_modules([str(here)]) if m.name.startswith("bench_"))
+    """The benchmarks: every module of this package but the runner (`__main__`)."""
+    return sorted(m.name for m in pkgutil.iter_modules([str(HERE)]) if not m.name.startswith("_"))
 
 
 def main(argv: list[str]) -> int:
@@ -29,7 +31,7 @@ def main(argv: list[str]) -> int:
         return 2
     status = 0
     for name in names:
-        module = importlib.import_module(f"evaluation.bench_{name}")
+        module = importlib.import_module(f"evaluation.bench.{name}")  # chosen by name on the command line
         try:
             result = module.run()
         except Exception as exc:  # report and keep going with the other benchmarks

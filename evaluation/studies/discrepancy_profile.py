@@ -1,10 +1,10 @@
 """The diagnosis's discrepancy D of a finished run at fixed physics settings: a profile.
 
-    python -m evaluation.discrepancy_profile outputs/diagnose_suite_small/cream-ground_tilt-5-s0 \\
+    python -m evaluation.studies.discrepancy_profile outputs/diagnose_suite_small/cream-ground_tilt-5-s0 \\
         --set preset=small '{"ground_tilt_deg": 5, "ground_tilt_azimuth_deg": -90}'
-    python -m evaluation.discrepancy_profile RUN --uniform-k '{}' '{"ground_tilt_deg": 5}'
-    python -m evaluation.discrepancy_profile RUN --values-from RUN_REIDENTIFIED '{"ground_offset": 0.015}'
-    python -m evaluation.discrepancy_profile RUN --first 14 --image-size 128 '{}' '{"ground_offset": 0.015}'
+    python -m evaluation.studies.discrepancy_profile RUN --uniform-k '{}' '{"ground_tilt_deg": 5}'
+    python -m evaluation.studies.discrepancy_profile RUN --values-from RUN_REIDENTIFIED '{"ground_offset": 0.015}'
+    python -m evaluation.studies.discrepancy_profile RUN --first 14 --image-size 128 '{}' '{"ground_offset": 0.015}'
 
 Each positional argument is a JSON object of `physics.*` extension settings
 (`sgdr.physics.extensions`; `{}` is the run's own model). For each, the run's asset is rolled out
@@ -35,8 +35,16 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from omegaconf import OmegaConf
 
-ROOT = Path(__file__).resolve().parent.parent
+import sgdr.backend
+import sgdr.config
+from sgdr.discrepancy.candidates import Evaluator
+from sgdr.discrepancy.measures import MEASURES
+from sgdr.discrepancy.run import excess_gain, frame0_floor
+from sgdr.physics.config import PhysicsConfig
+from sgdr.posterior.rollouts import ROLLOUTS
+from sgdr.run_folder import run_asset_and_sequence
 
 
 def identified_values(run_dir: Path) -> dict:
@@ -57,13 +65,6 @@ def identified_values(run_dir: Path) -> dict:
 
 def profile(cfg, settings: list[dict], first: int = 1, image_size: int = 0, uniform_k: bool = False, values_from=None):
     """Rows {settings, d_fit, d_held_out, gain} for each entry of `settings` (module docstring)."""
-    from sgdr.discrepancy.candidates import Evaluator
-    from sgdr.discrepancy.measures import MEASURES
-    from sgdr.discrepancy.run import excess_gain, frame0_floor
-    from sgdr.physics.config import PhysicsConfig
-    from sgdr.posterior.rollouts import ROLLOUTS
-    from sgdr.posterior.run import run_asset_and_sequence
-
     dc = cfg.diagnose
     if image_size:
         dc = replace(dc, max_image_size=int(image_size))
@@ -124,12 +125,6 @@ def main(argv=None) -> int:
     if not all(isinstance(s, dict) for s in settings):
         print("error: each settings argument must be a JSON object, e.g. '{\"ground_offset\": 0.01}'", file=sys.stderr)
         return 2
-    sys.path.insert(0, str(ROOT))
-    from omegaconf import OmegaConf
-
-    import sgdr.backend
-    import sgdr.config
-
     sgdr.config.register()
     cfg = OmegaConf.to_object(sgdr.config.compose([*args.set, f"diagnose.run={args.run}"]))
     sgdr.backend.init(cfg.backend, cfg.threads or None)

@@ -1,11 +1,11 @@
 """Simulation-based calibration of the posterior on twin sequences (issue 14, §5).
 
-    python -m evaluation.calibrate_posterior posterior.run=outputs/torus_tiny_s0 preset=tiny \
+    python -m evaluation.studies.calibrate_posterior posterior.run=outputs/torus_tiny_s0 preset=tiny \
         +cases=20 +out=results/calibration_tiny
 
 For each case a truth is drawn from the prior (`posterior.priors`, the sampled
 `posterior.parameters`; seeded by the case number), a twin sequence is rendered from the run's
-asset with that truth (`sgdr.posterior.twin`: the truth is in the model class), and the posterior
+asset with that truth (`sgdr.synth.twin`: the truth is in the model class), and the posterior
 is computed on the twin's images with the same asset (`sgdr.posterior.run.run_posterior`).
 Calibrated posteriors put the truth inside their 90% interval (5-95%) in 90% of the cases and
 give SBC ranks (the number of kept posterior draws below the truth, Talts et al. 2018) that are
@@ -22,12 +22,21 @@ that n processes (one per core) share one record: each case is merged into it un
 from __future__ import annotations
 
 import fcntl
+import hashlib
 import json
 import sys
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from omegaconf import OmegaConf
+
+import sgdr.backend
+from sgdr.cli import user_errors
+from sgdr.config import compose, validate
+from sgdr.posterior.run import run_posterior
+from sgdr.synth.twin import twin_sequence
 
 N_BINS = 5  # rank histogram bins (few cases: coarse bins)
 
@@ -69,7 +78,7 @@ def summarise(cases: list[dict], names: list[str]) -> dict:
 
 
 def plot_ranks(summary: dict, path: Path) -> Path:
-    import matplotlib
+    import matplotlib  # here, not at the top: the Agg backend is chosen only when a figure is drawn
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -124,6 +133,55 @@ def parse_shard(text: str | None) -> tuple[int, int]:
     return i, n
 
 
+def sampler_setup(posterior_cfg, twin_scale: int) -> dict:
+    """What a record's cases must share: the twins' scale and the sampler's settings."""
+    pc = posterior_cfg
+    return {
+        "twin_scale": int(twin_scale),
+        "moves": pc.moves,
+        "space": pc.space,
+        "n_steps": int(pc.n_steps),
+        "n_walkers": int(pc.n_walkers),
+        "n_ensembles": int(pc.n_ensembles),
+        "parameters": list(pc.parameters),
+    }
+
+
+def run_case(cfg, case: int, asset_dir: Path, digest: str, out: Path, twin_scale: int) -> dict:
+    """One case: a truth drawn from the prior, its twin rendered from the asset (`digest`: its
+    asset.json's), the posterior on the twin's images; the record's entry (truth, median, 5%, 95%,
+    inside, rank, diagnostics)."""
+    pc = cfg.posterior
+    names = list(pc.parameters)
+    truth = draw_truth(pc.priors, names, case)
+    case_dir = out / f"case_{case:03d}"
+    twin = twin_sequence(asset_dir, case_dir / "twin", truth, cfg.render, image_scale=int(twin_scale))
+    case_cfg = replace(
+        cfg,
+        tracking=replace(cfg.tracking, enabled=False),
+        posterior=replace(pc, sequence=str(twin), out_dir=str(case_dir / "posterior")),
+    )
+    res = run_posterior(case_cfg, progress=False)
+    with np.load(case_dir / "posterior" / "samples.npz", allow_pickle=False) as z:
+        kept = z["kept"]
+    diag = res["diagnostics"]
+    return {
+        "case": case,
+        "truth": truth,
+        "median": {n: diag["median"][n] for n in names},
+        "q05": {n: diag["q05"][n] for n in names},
+        "q95": {n: diag["q95"][n] for n in names},
+        "inside": {n: bool(diag["q05"][n] <= truth[n] <= diag["q95"][n]) for n in names},
+        "rank": {n: sbc_rank(kept[:, i], truth[n]) for i, n in enumerate(names)},
+        "converged": bool(res["converged"]),
+        "asset": digest,
+        "failed": res["failed"],
+        "tau_max": diag.get("tau_max"),
+        "rhat_max": max((v for v in diag["rhat"].values() if v is not None), default=None),
+        "seconds": res["cost"]["seconds"],
+    }
+
+
 def calibrate(
     cfg,
     n_cases: int,
@@ -137,29 +195,14 @@ def calibrate(
     cameras, and their posteriors; resumable (cases in `record_file`, default
     `<out>/calibration.json`, are kept, and a record written with another setup is refused).
     `shard=(i, n)` runs the cases with case % n == i; shards merge into one record."""
-    import hashlib
-    from dataclasses import replace
-
-    from sgdr.posterior.run import run_posterior
-    from sgdr.posterior.twin import twin_sequence
-
     out.mkdir(parents=True, exist_ok=True)
     record_file = Path(record_file) if record_file else out / "calibration.json"
     record_file.parent.mkdir(parents=True, exist_ok=True)
-    pc = cfg.posterior
-    setup = {
-        "twin_scale": int(twin_scale),
-        "moves": pc.moves,
-        "space": pc.space,
-        "n_steps": int(pc.n_steps),
-        "n_walkers": int(pc.n_walkers),
-        "n_ensembles": int(pc.n_ensembles),
-        "parameters": list(pc.parameters),
-    }
+    setup = sampler_setup(cfg.posterior, twin_scale)
     with locked_record(record_file, setup):
         pass  # refuses a record of another setup before any work
-    names = list(pc.parameters)
-    asset_dir = Path(pc.run) / "asset"
+    names = list(cfg.posterior.parameters)
+    asset_dir = Path(cfg.posterior.run) / "asset"
     digest = hashlib.sha256((asset_dir / "asset.json").read_bytes()).hexdigest()[:12]
     for case in range(n_cases):
         if case % shard[1] != shard[0]:
@@ -167,44 +210,17 @@ def calibrate(
         with locked_record(record_file, setup) as record:
             if case in {c["case"] for c in record["cases"]}:
                 continue
-        truth = draw_truth(pc.priors, names, case)
-        twin = twin_sequence(
-            asset_dir, out / f"case_{case:03d}" / "twin", truth, cfg.render, image_scale=int(twin_scale)
-        )
-        case_cfg = replace(
-            cfg,
-            tracking=replace(cfg.tracking, enabled=False),
-            posterior=replace(pc, sequence=str(twin), out_dir=str(out / f"case_{case:03d}" / "posterior")),
-        )
-        res = run_posterior(case_cfg, progress=False)
-        with np.load(out / f"case_{case:03d}" / "posterior" / "samples.npz", allow_pickle=False) as z:
-            kept = z["kept"]
-        diag = res["diagnostics"]
-        entry = {
-            "case": case,
-            "truth": truth,
-            "median": {n: diag["median"][n] for n in names},
-            "q05": {n: diag["q05"][n] for n in names},
-            "q95": {n: diag["q95"][n] for n in names},
-            "inside": {n: bool(diag["q05"][n] <= truth[n] <= diag["q95"][n]) for n in names},
-            "rank": {n: sbc_rank(kept[:, i], truth[n]) for i, n in enumerate(names)},
-            "converged": bool(res["converged"]),
-            "asset": digest,
-            "failed": res["failed"],
-            "tau_max": diag.get("tau_max"),
-            "rhat_max": max((v for v in diag["rhat"].values() if v is not None), default=None),
-            "seconds": res["cost"]["seconds"],
-        }
+        entry = run_case(cfg, case, asset_dir, digest, out, twin_scale)
         with locked_record(record_file, setup) as record:
             record["cases"] = sorted(
                 [c for c in record["cases"] if c["case"] != case] + [entry], key=lambda c: c["case"]
             )
             record_file.write_text(json.dumps(record, indent=1))
         if progress:
-            c = entry
-            inside = sum(c["inside"].values())
+            inside = sum(entry["inside"].values())
             print(
-                f"case {case}: {inside}/{len(names)} truths inside their 90% interval, {c['seconds']:.0f} s", flush=True
+                f"case {case}: {inside}/{len(names)} truths inside their 90% interval, {entry['seconds']:.0f} s",
+                flush=True,
             )
     with locked_record(record_file, setup) as record:
         record["summary"] = summarise(record["cases"], names)
@@ -218,12 +234,6 @@ def calibrate(
 
 
 def main(argv: list[str]) -> None:
-    from omegaconf import OmegaConf
-
-    import sgdr.backend
-    from sgdr.cli import user_errors
-    from sgdr.config import compose, validate
-
     extra = {a.split("=", 1)[0][1:]: a.split("=", 1)[1] for a in argv if a.startswith("+")}
     overrides = [a for a in argv if not a.startswith("+")]
     with user_errors():

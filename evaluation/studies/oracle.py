@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 import drjit as dr
 import numpy as np
 from scipy.spatial import cKDTree
+from tqdm import tqdm
 
 from sgdr.anchors import sample_anchors
 from sgdr.arrays import array3_to_points, points_to_array3, scalar, to_numpy
@@ -84,10 +85,32 @@ class OracleResult:
 
 def tracked_anchor_index(particles0: np.ndarray, n_anchors: int, seed: int) -> np.ndarray:
     """[N_A] indices of farthest-point-sampled particles of frame 0 (particles0 [P, 3])."""
-
     chosen = sample_anchors(particles0, int(n_anchors), "fps", 0.0, int(seed))  # [N_A, 3]
     _, index = cKDTree(particles0).query(chosen, k=1)  # exact: the sampler returns particles
     return np.asarray(index, dtype=np.int64)
+
+
+def track_optimiser(n_anchors: int, physics_cfg, recon_cfg, log10_k_init: float):
+    """Adam over log10 k_i [N_A] (uniform start `log10_k_init`), κ, μ, e (the physics' initial
+    values), with the dynamic stage's learning rates (`recon_cfg`)."""
+    t = ad()
+    return make_adam(
+        {
+            "log10_k": (t.Float(np.full(n_anchors, float(log10_k_init), np.float32)), recon_cfg.lr_log10_k),
+            "kappa": (t.Float(float(physics_cfg.kappa_init)), recon_cfg.lr_kappa),
+            "friction": (t.Float(float(physics_cfg.friction_init)), recon_cfg.lr_friction),
+            "restitution": (t.Float(float(physics_cfg.restitution_init)), recon_cfg.lr_restitution),
+        }
+    )
+
+
+def track_loss(states, targets, n_fit: int):
+    """Mean squared distance of the simulated anchors to their tracks over frames 1..n_fit-1
+    (states: the rollout's `SimState`s; targets: the tracks as Dr.Jit Array3f per frame)."""
+    loss = 0.0
+    for f in range(1, n_fit):
+        loss = loss + dr.mean(dr.squared_norm(states[f].x - targets[f]))
+    return loss / float(n_fit - 1)
 
 
 def fit_tracks(
@@ -110,21 +133,12 @@ def fit_tracks(
     v0 [3]; recon_cfg: `ReconConfig`, whose learning rates and clamps the dynamic stage uses.
     Returns (values, losses [iterations], simulated anchors [T, N_A, 3]).
     """
-
-    t = ad()
     n_frames, n_a = tracks.shape[0], tracks.shape[1]
     if not 2 <= n_fit <= n_frames:
         raise ValueError(f"oracle: n_fit={n_fit} must be in [2, {n_frames}] (frames of the tracks)")
     model = build_spring_model(tracks[0], int(n_k), physics_cfg)
     base = PhysParams.init(model, physics_cfg, v0=tuple(map(float, v0)), gravity=tuple(map(float, gravity)))
-    opt = make_adam(
-        {
-            "log10_k": (t.Float(np.full(n_a, float(log10_k_init), np.float32)), recon_cfg.lr_log10_k),
-            "kappa": (t.Float(float(physics_cfg.kappa_init)), recon_cfg.lr_kappa),
-            "friction": (t.Float(float(physics_cfg.friction_init)), recon_cfg.lr_friction),
-            "restitution": (t.Float(float(physics_cfg.restitution_init)), recon_cfg.lr_restitution),
-        }
-    )
+    opt = track_optimiser(n_a, physics_cfg, recon_cfg, log10_k_init)
     targets = [points_to_array3(tracks[f]) for f in range(n_frames)]
     dt_frame = 1.0 / float(fps)
 
@@ -135,8 +149,6 @@ def fit_tracks(
 
     steps = range(int(iterations))
     if progress:
-        from tqdm import tqdm
-
         steps = tqdm(steps, desc="oracle fit", leave=False)
     losses = []
     for _ in steps:
@@ -144,10 +156,7 @@ def fit_tracks(
         states = rollout(
             model, p, SimState.at_rest(model, p.v0), ground, n_fit, dt_frame, physics_cfg, grad_mode="full"
         )
-        loss = 0.0
-        for f in range(1, n_fit):
-            loss = loss + dr.mean(dr.squared_norm(states[f].x - targets[f]))
-        loss = loss / float(n_fit - 1)
+        loss = track_loss(states, targets, n_fit)
         dr.backward(loss)
         opt.step()
         clamp_to_ranges(opt, recon_cfg)  # the stage's projection: log10 k, μ, e back into their ranges
@@ -168,7 +177,6 @@ def fit_tracks(
 
 def _rollout_points(model, params, ground, n_frames: int, dt_frame: float, cfg) -> np.ndarray:
     """Anchor positions [n_frames, N_A, 3] of a rollout from rest, without gradients."""
-
     with dr.suspend_grad():
         states = rollout(model, params, SimState.at_rest(model, params.v0), ground, n_frames, dt_frame, cfg)
         return np.stack([array3_to_points(s.x) for s in states])
@@ -192,7 +200,6 @@ def offset_scan(
     "fit_track_error", "future_track_error", "final_centre" [3]}]; ensemble: the mean rollout
     of the offsets whose fit error is within `ensemble_tol` x the best, scored the same way
     ({"offsets", "fit_track_error", "future_track_error", "spread_last"}; {} without offsets)."""
-
     offsets = [float(o) for o in offsets]
     if not offsets:
         return [], {}
@@ -317,7 +324,7 @@ def oracle_study(
 
 def plot_oracle(result: OracleResult, path, title: str = "") -> None:
     """Per-frame track error of the oracle rollout and of the physics-free continuations."""
-    import matplotlib
+    import matplotlib  # here, not at the top: the Agg backend is chosen only when a figure is drawn
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

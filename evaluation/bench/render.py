@@ -22,6 +22,11 @@ import time
 
 import numpy as np
 
+import sgdr.backend
+
+# Dr.Jit and the sgdr modules that import it: inside the functions, after `sgdr.backend.init`
+# (evaluation/bench/__init__.py says why).
+
 
 def _scene(n: int, seed: int = 0):
     from sgdr.gaussians.model import Gaussians
@@ -142,12 +147,11 @@ def _static_fit_small() -> tuple[float, float, int]:
 
 
 def run() -> dict:
+    backend = sgdr.backend.init("llvm")
     import drjit as dr
 
-    import sgdr.backend
     from sgdr.render.config import RenderConfig
 
-    backend = sgdr.backend.init("llvm")
     cfg = RenderConfig()
     result: dict = {"threads": backend.threads}
     g10k, cam256 = _scene(10_000), _camera(256)

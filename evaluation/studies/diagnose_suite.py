@@ -1,10 +1,10 @@
 """The diagnosis suite: injected and null MPM sequences, each reconstructed and diagnosed.
 
-    python -m evaluation.diagnose_suite                      # the default suite at small, resumable
-    python -m evaluation.diagnose_suite --max-cases 5        # the next five unfinished cases
-    python -m evaluation.diagnose_suite --rediagnose         # diagnosis only, on the runs already here
-    python -m evaluation.diagnose_suite --summary            # the bars, from the results file
-    python -m evaluation.diagnose_suite --effect-sizes       # re-measure effect sizes of kept sequences
+    python -m evaluation.studies.diagnose_suite                      # the default suite at small, resumable
+    python -m evaluation.studies.diagnose_suite --max-cases 5        # the next five unfinished cases
+    python -m evaluation.studies.diagnose_suite --rediagnose         # diagnosis only, on the runs already here
+    python -m evaluation.studies.diagnose_suite --summary            # the bars, from the results file
+    python -m evaluation.studies.diagnose_suite --effect-sizes       # re-measure effect sizes of kept sequences
 
 A case is an object, an injected effect and its size (or none: a null case), and a seed. For each
 case the generator (`experiments/generate.py`, MPM + Mitsuba) writes the sequence with the effect
@@ -34,8 +34,15 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
-ROOT = Path(__file__).resolve().parent.parent
+from evaluation import ROOT
+from sgdr.config import compose
+from sgdr.discrepancy.candidates import CANDIDATES
+from sgdr.discrepancy.config import DiagnoseConfig
+from sgdr.discrepancy.run import decide, rivals, settle_mimics
+from sgdr.synth.objects import OBJECTS as REGISTRY
+
 NOMINAL_GRAVITY = 9.8
 
 # effect -> (the generator setting, how a case's value maps to it for an object, the cause a
@@ -54,8 +61,6 @@ EFFECTS = {
 
 
 def _young(obj: str) -> float:
-    from sgdr.synth.objects import OBJECTS as REGISTRY
-
     return float(REGISTRY.get_named(obj).material.E)
 
 
@@ -338,8 +343,6 @@ def method_thresholds(method: str) -> dict:
     """`diagnose.min_gain_by_candidate` as the config composes it for `method` (a method file may
     set its own, e.g. conf/method/single_k.yaml); cached per method."""
     if method not in _THRESHOLDS:
-        from sgdr.config import compose
-
         cfg = compose([f"method={method}"])
         _THRESHOLDS[method] = dict(cfg.diagnose.min_gain_by_candidate)
     return _THRESHOLDS[method]
@@ -356,10 +359,6 @@ def redecide_with_rivals(rec: dict, thresholds: dict | None = None) -> tuple[str
     """`redecide`'s cause and the other causes that fit as well (`sgdr.discrepancy.run.rivals`,
     the default `diagnose.mimic_margin`), after the whole fit window settles a tie between
     free-flight mimics (`settle_mimics`; records without `fit_window_gain` stay tied)."""
-    from sgdr.discrepancy.candidates import CANDIDATES
-    from sgdr.discrepancy.config import DiagnoseConfig
-    from sgdr.discrepancy.run import decide, rivals, settle_mimics
-
     thresholds = thresholds or method_thresholds(rec.get("method", "spring_gaus"))
     gains = {n: c["gain"] for n, c in rec["candidates"].items()}
     per = {n: thresholds.get(n, DiagnoseConfig.min_gain) for n in gains}
@@ -461,9 +460,6 @@ def summary(results: dict) -> dict:
 def truth_reach(rec: dict, thresholds: dict | None = None) -> bool | None:
     """Whether a candidate of the case's expected cause, judged at the injected truth, reaches its
     threshold (the current ones of the record's method); None when none was judged there."""
-    from sgdr.discrepancy.candidates import CANDIDATES
-    from sgdr.discrepancy.config import DiagnoseConfig
-
     thresholds = thresholds or method_thresholds(rec.get("method", "spring_gaus"))
     gains = [
         (n, c["truth_gain"])
@@ -478,8 +474,6 @@ def truth_reach(rec: dict, thresholds: dict | None = None) -> bool | None:
 def _cause_gain(r: dict):
     """The largest held-out gain among a record's candidates of its expected cause (the tilt and
     the offset both stand for ground_plane), or None when none was run."""
-    from sgdr.discrepancy.candidates import CANDIDATES
-
     gains = [c["gain"] for n, c in r["candidates"].items() if n in CANDIDATES and CANDIDATES[n].cause == r["expected"]]
     return max(gains) if gains else None
 
@@ -555,8 +549,6 @@ def main(argv=None) -> int:
         todo = [c for c in cases if not _current(results.get(c.id, {}))]
     if args.max_cases:
         todo = todo[: args.max_cases]
-    from tqdm import tqdm
-
     args.results.parent.mkdir(parents=True, exist_ok=True)
     print(f"{len(todo)} of {len(cases)} cases to run; results append to {args.results}", flush=True)
     for case in tqdm(todo, desc="diagnose suite", unit="case"):

@@ -24,14 +24,17 @@ import time
 
 import numpy as np
 
+import sgdr.backend as backend
+
+# Dr.Jit and the sgdr modules that import it: inside the functions, after `sgdr.backend.init`
+# (evaluation/bench/__init__.py says why).
+
 N_FRAMES, FPS, SIZES, REPS = 4, 24.0, (1, 5, 15), 2
 LOG10_E, NU = (3.0, 4.5), (0.05, 0.4)  # the candidates' range (its stiffest sets the substeps)
 
 
 def _scene():
-    import sgdr.backend as backend
-
-    backend.init("llvm") if backend._current is None else None
+    backend.current()  # the LLVM backend unless a driver chose one
     from sgdr.baselines import pacnerf as pn
     from sgdr.baselines.config import PacNerfConfig
     from sgdr.synth.objects import placed_sdf

@@ -1,8 +1,8 @@
 """The posterior on the seven MPM benchmark objects: predictive coverage and future CD (issue 14, §5).
 
-    python -m evaluation.posterior_objects                       # the preset's runs outputs/<object>_small_s0
-    python -m evaluation.posterior_objects --objects torus,cream --set posterior.n_steps=80
-    python -m evaluation.posterior_objects --summary             # the table, from the results file
+    python -m evaluation.studies.posterior_objects                       # the preset's runs outputs/<object>_small_s0
+    python -m evaluation.studies.posterior_objects --objects torus,cream --set posterior.n_steps=80
+    python -m evaluation.studies.posterior_objects --summary             # the table, from the results file
 
 For each object's finished reconstruction (`outputs/<object>_<preset>_s0`, as `make reproduce` or
 `make demo` leaves it) `experiments/posterior.py` computes the posterior of the run's physics on
@@ -15,7 +15,7 @@ baseline), all three scored the same way (the Gaussian centres against the true 
 file (`--rerun` runs them again; later lines supersede earlier ones). The data are generated
 by the MPM, not by the spring-mass model: the truth is outside the model class, so these numbers
 measure how the posterior behaves under misspecification, not its calibration (twins do that:
-evaluation/calibrate_posterior.py).
+evaluation/studies/calibrate_posterior.py).
 """
 
 from __future__ import annotations
@@ -27,14 +27,14 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+from evaluation import ROOT
+from evaluation.studies.diagnose_suite import read_results as read_jsonl
+
 OBJECTS = ("torus", "cross", "cream", "apple", "paste", "chess", "banana")
 
 
 def read_results(path: Path) -> dict:
     """The last record per object (later lines supersede earlier ones)."""
-    from evaluation.diagnose_suite import read_results as read_jsonl
-
     return read_jsonl(path, key="object")
 
 

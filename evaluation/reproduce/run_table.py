@@ -83,9 +83,9 @@ def table(run_dirs: list[Path]) -> str:
 
 
 def main(argv: list[str]) -> int:
-    if not argv:
+    if not argv or argv[0] in ("-h", "--help"):
         print(__doc__, file=sys.stderr)
-        return 2
+        return 0 if argv else 2
     print(table([Path(a) for a in argv]))
     return 0
 

@@ -29,12 +29,21 @@ class SearchConfig:
     views at the prediction's n_t. The method sets what is searched, the preset how much."""
 
     parameters: list[str] = field(default_factory=list)  # searched: log10_k (one level), kappa, friction,
-    #   restitution (those the physics lacks are skipped); empty = no search (start at physics.*_init,
-    #   or the best of recon.log10_k_grid)
+    #   restitution, region_contrast, region_theta, region_phi, region_offset (two regions of different
+    #   stiffness split by a plane; sgdr.identify.global_search); those the physics lacks are skipped;
+    #   empty = no search (start at physics.*_init, or the best of recon.log10_k_grid)
     log10_k_range: list[float] = field(default_factory=lambda: [1.5, 5.5])  # capped by the stability bound at n_t
     kappa_range: list[float] = field(default_factory=lambda: [-4.0, 4.0])
     friction_range: list[float] = field(default_factory=lambda: [0.0, 1.0])
     restitution_range: list[float] = field(default_factory=lambda: [0.0, 0.9])
+    region_contrast_range: list[float] = field(default_factory=lambda: [-1.5, 1.5])  # decades between the two regions
+    region_theta_range: list[float] = field(default_factory=lambda: [0.0, 3.1416])  # the plane's normal, polar angle
+    region_phi_range: list[float] = field(
+        default_factory=lambda: [0.0, 3.1416]
+    )  # its azimuth (n and -n with -c are one split)
+    region_offset_range: list[float] = field(
+        default_factory=lambda: [-0.3, 0.3]
+    )  # the plane's distance from the centre, sizes
     sigma0: float = 0.3  # CMA-ES's initial step, in units of each range
     popsize: int = 8  # candidates per generation (one batched rollout)
     generations: int = 10
@@ -120,6 +129,10 @@ SEARCH_CHECKS = {
     "kappa_range": vector(2),
     "friction_range": vector(2),
     "restitution_range": vector(2),
+    "region_contrast_range": vector(2),
+    "region_theta_range": vector(2),
+    "region_phi_range": vector(2),
+    "region_offset_range": vector(2),
     "sigma0": positive(),
     "popsize": at_least(2),
     "generations": at_least(1),

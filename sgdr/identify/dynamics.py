@@ -60,10 +60,18 @@ from dataclasses import dataclass, field, replace
 import drjit as dr
 import numpy as np
 
-from sgdr.arrays import scalar, to_numpy
+from sgdr.arrays import array3_to_points, scalar, to_numpy
 from sgdr.identify.adam import adam_from_numpy, adam_to_numpy, make_adam
 from sgdr.identify.config import ReconConfig
-from sgdr.identify.global_search import CHOICES, PopulationScorer, global_search, landscape, search_space
+from sgdr.identify.global_search import (
+    CHOICES,
+    REGION_PARAMETERS,
+    PopulationScorer,
+    global_search,
+    landscape,
+    region_field,
+    search_space,
+)
 from sgdr.loss import image_loss
 from sgdr.physics import PhysParams, SimState, SimulationUnstable, doubled_substeps, rollout, simulate_frame
 from sgdr.physics.laws import CONTACT_PARAMETERS
@@ -71,6 +79,8 @@ from sgdr.registry import Registry
 from sgdr.render.images import posed, render
 
 log = logging.getLogger(__name__)
+
+REGION_START = {"region_theta": 0.5 * math.pi}  # a vertical plane; contrast 0: the regions start equal
 
 
 @dataclass
@@ -456,14 +466,20 @@ def _start_values(base, physics_cfg, stiffness) -> dict:
     return values
 
 
-def _with_values(base, values: dict):
-    """`base` with global values {log10_k: a uniform level, kappa, friction, restitution}."""
+def _with_values(base, values: dict, model=None):
+    """`base` with global values {log10_k: a uniform level, kappa, friction, restitution, and the
+    two regions region_* (`global_search.region_field` of `model`'s anchors) about the level}."""
     t_f = type(base.friction)
     fields = {}
+    regions = {n: [float(v)] for n, v in values.items() if n in REGION_PARAMETERS}
+    if "log10_k" in values or regions:
+        level = float(values.get("log10_k", np.mean(to_numpy(base.log10_k))))
+        k = np.full(dr.width(base.log10_k), level)
+        if regions:
+            k = k + region_field(array3_to_points(model.x_rest), regions)[0]
+        fields["log10_k"] = type(base.log10_k)(k.astype(np.float32))
     for name, v in values.items():
-        if name == "log10_k":
-            fields[name] = dr.full(type(base.log10_k), float(v), dr.width(base.log10_k))
-        else:
+        if name != "log10_k" and name not in REGION_PARAMETERS:
             fields[name] = t_f(float(v))
     out = replace(base, **fields)
     dr.make_opaque(out)
@@ -534,7 +550,7 @@ def fit_dynamics(
     if start_info is None:
         start_info = _start(model, binding, g, v0, base, ground, targets, cameras, dt, n_t0, n_t_final, physics_cfg,
                             cfg, render_cfg, lam, seed, progress, max(int(n_predict), n_fit))  # fmt: skip
-    base = _with_values(base, start_info["values"])
+    base = _with_values(base, start_info["values"], model)
     level = float(start_info["values"].get("log10_k", physics_cfg.log10_k_init))
 
     def inputs_for(frame_targets, prior):
@@ -681,10 +697,17 @@ def _start(model, binding, g, v0, base, ground, targets, cameras, dt, n_t0, n_t_
     n_fit = len(targets)
     start_info = {"k_grid": {}, "search": {}, "values": {}}
     if cfg.search.parameters:
-        space = search_space(cfg.search, physics_cfg, model, dt, n_t_final)
+        space = search_space(cfg.search, physics_cfg, model, dt, n_t_final, cfg.stiffness == "per_anchor")
         scorer = PopulationScorer(model, binding, g, base, ground, targets, cameras, dt, n_t_final, physics_cfg,
                                   render_cfg, lam, cfg.search.image_scale)  # fmt: skip
-        init = {n: scalar(getattr(base, n)) if n != "log10_k" else float(physics_cfg.log10_k_init) for n in space.names}
+        init = {  # the regions start equal (contrast 0), split by a vertical plane through the centre
+            n: float(physics_cfg.log10_k_init)
+            if n == "log10_k"
+            else REGION_START.get(n, 0.0)
+            if n in REGION_PARAMETERS
+            else scalar(getattr(base, n))
+            for n in space.names
+        }
         found = global_search(scorer, space, init, cfg.search, seed, progress)
         found.landscape = landscape(scorer, found, cfg.search, n_predict, n_fit)
         start_info["search"] = found.to_json()

@@ -7,6 +7,14 @@ the box of the global parameters `recon.search.parameters` (a subset of `GLOBAL_
 
     θ_g = (log10 k, κ, μ, e)    log10 k: one level for every anchor (the field's mean)
 
+and, where `recon.search.parameters` names them, two regions of different stiffness split by a
+plane (`region_field`): log10 k_i = level + (c / 2) tanh(((x_i - x̄)·n / size - b) / w), n the
+unit normal at polar angle `region_theta` and azimuth `region_phi`, b = `region_offset` (the
+plane's distance from the anchors' centre, in sizes), c = `region_contrast` (decades between the
+two sides), w = REGION_WIDTH. A stiffness that differs between regions is then seen by the search
+itself, on whole rollouts, instead of being left to per-anchor gradients that mostly point
+elsewhere (docs/identification.md: a two-region twin).
+
 with CMA-ES (the `cma` package) in unit coordinates u = (θ_g - lo) / (hi - lo) ∈ [0, 1]^d,
 started from the best of `recon.search.initial_samples` scrambled Sobol points over the box
 (a first look at every basin; CMA-ES with a small population settles in the basin nearest its
@@ -43,7 +51,7 @@ from types import SimpleNamespace
 import drjit as dr
 import numpy as np
 
-from sgdr.arrays import to_numpy
+from sgdr.arrays import array3_to_points, to_numpy
 from sgdr.backend import ad
 from sgdr.loss import image_loss
 from sgdr.observe.images import block_mean, downscaled
@@ -54,8 +62,32 @@ from sgdr.render.images import posed, render
 
 log = logging.getLogger(__name__)
 
-GLOBAL_PARAMETERS = ("log10_k", "kappa", "friction", "restitution")
+REGION_PARAMETERS = ("region_contrast", "region_theta", "region_phi", "region_offset")
+GLOBAL_PARAMETERS = ("log10_k", "kappa", "friction", "restitution", *REGION_PARAMETERS)
 """The global parameters the search may vary (recon.search.parameters)."""
+
+REGION_WIDTH = 0.05
+"""Width of the border between the two regions, in sizes (tanh's scale): sharp against the object,
+smooth enough that a small move of the plane changes the rollout a little."""
+
+
+def region_field(x_rest: np.ndarray, values: dict) -> np.ndarray:
+    """[S, N_A] deviation of log10 k from the level for {region_*: [S] values} (module docstring);
+    x_rest [N_A, 3] the anchors' rest positions. Parameters left out: contrast 0, the plane through
+    the centre with normal +z."""
+    x = np.asarray(x_rest, float).reshape(-1, 3)
+    size = max(float(np.ptp(x, axis=0).max()), 1e-12)
+    rel = (x - x.mean(axis=0)) / size  # [N_A, 3]
+    n_samples = max(np.size(v) for v in values.values())
+
+    def get(name: str, default: float) -> np.ndarray:
+        return np.broadcast_to(np.asarray(values.get(name, default), float), (n_samples,))
+
+    c, b = get("region_contrast", 0.0), get("region_offset", 0.0)
+    theta, phi = get("region_theta", 0.0), get("region_phi", 0.0)
+    n = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=1)  # [S, 3]
+    return 0.5 * c[:, None] * np.tanh((n @ rel.T - b[:, None]) / REGION_WIDTH)
+
 
 UNSTABLE_LOSS = 10.0
 """The score of a candidate whose rollout is unstable: above any image loss (L1 and D-SSIM <= 1)."""
@@ -121,12 +153,17 @@ def stable_level(model, kappa_values, dt_frame: float, n_t: int, physics_cfg) ->
     return math.log10(physics_cfg.cfl_factor**2 / (dt * dt * worst))
 
 
-def search_space(search_cfg, physics_cfg, model, dt_frame: float, n_t: int) -> SearchSpace:
-    """The box of `recon.search.parameters` with the `recon.search.<name>_range` ranges; κ only
-    where the soft vector acts, e only where the contact has one (physics.contact); log10 k
-    capped at the stability bound at n_t (`stable_level`). Raises SearchConfigError naming the key."""
+def search_space(
+    search_cfg, physics_cfg, model, dt_frame: float, n_t: int, per_anchor: bool | None = None
+) -> SearchSpace:
+    """The box of `recon.search.parameters` with the `recon.search.<name>_range` ranges
+    ; κ only where the soft vector acts, e only where the contact has one (physics.contact), the
+        two regions only with a per-anchor stiffness (`per_anchor`, recon.stiffness); log10 k capped
+        at the stability bound at n_t (`stable_level`; with regions, the stiffer side's level).
+        Raises SearchConfigError naming the key."""
 
     unknown = [n for n in search_cfg.parameters if n not in GLOBAL_PARAMETERS]
+    per_anchor = per_anchor if per_anchor is not None else True
     if unknown:
         raise SearchConfigError(f"recon.search.parameters: unknown {unknown}; known: {list(GLOBAL_PARAMETERS)}")
     contact = CONTACT_PARAMETERS.get_named(physics_cfg.contact)
@@ -136,9 +173,12 @@ def search_space(search_cfg, physics_cfg, model, dt_frame: float, n_t: int) -> S
             continue  # η = 1: κ acts on nothing
         if name in ("friction", "restitution") and name not in contact:
             continue
-        a, b = (float(v) for v in getattr(search_cfg, f"{name}_range"))
+        if name in REGION_PARAMETERS and not per_anchor:
+            continue  # one stiffness for every anchor: no regions
+        key = f"{name}_range"
+        a, b = (float(v) for v in getattr(search_cfg, key))
         if not (math.isfinite(a) and math.isfinite(b) and a < b):
-            raise SearchConfigError(f"recon.search.{name}_range={[a, b]} must be two finite numbers, low < high")
+            raise SearchConfigError(f"recon.search.{key}={[a, b]} must be two finite numbers, low < high")
         names.append(name)
         lo.append(a)
         hi.append(b)
@@ -151,6 +191,8 @@ def search_space(search_cfg, physics_cfg, model, dt_frame: float, n_t: int) -> S
                 f"recon.search.log10_k_range={[lo[i], hi[i]]}: every level is unstable at n_t={n_t} substeps per "
                 f"frame (the stability bound allows log10 k <= {cap:.3g}); lower the range or raise physics.n_substeps"
             )
+        if "region_contrast" in names:  # the stiffer region sits half the contrast above the level
+            cap -= 0.5 * max(abs(v) for v in (lo[names.index("region_contrast")], hi[names.index("region_contrast")]))
         hi[i] = min(hi[i], cap)
     return SearchSpace(tuple(names), np.asarray(lo, float), np.asarray(hi, float))
 
@@ -261,6 +303,7 @@ class PopulationScorer:
         )
         self.base_level = float(np.mean(to_numpy(base.log10_k)))
         self.image_scale = k
+        self.x_rest = np.asarray(array3_to_points(model.x_rest), float)
 
     def samples(self, values: dict[str, np.ndarray]) -> dict:
         """Candidate values -> `batched_rollout` samples (a level is a shift of the base field)."""
@@ -268,8 +311,11 @@ class PopulationScorer:
         for name, v in values.items():
             if name == "log10_k":
                 out["dlog10_k"] = np.asarray(v, float) - self.base_level
-            else:
+            elif name not in REGION_PARAMETERS:
                 out[name] = np.asarray(v, float)
+        regions = {n: v for n, v in values.items() if n in REGION_PARAMETERS}
+        if regions:
+            out["dlog10_k_anchor"] = region_field(self.x_rest, regions)
         return out
 
     def rollout(self, values: dict[str, np.ndarray], n_frames: int):

@@ -17,6 +17,8 @@ the same copy, so the same sample's value), and the contact reads μ and e per a
 What a sample varies (`SAMPLE_FIELDS`; a field left out takes `base_params`' value):
 - `dlog10_k` [S]: a global shift Δ of the identified field, log10 k_i = log10 k_i^base + Δ
   (in float32, as the simulator stores it); for a single-k model this is the global k;
+- `dlog10_k_anchor` [S, N_A]: a shift per anchor, added to the global one (the global search's
+  spatial modes of the field);
 - `kappa` [S] (κ of the soft vector), `friction` [S] (μ), `restitution` [S] (e), `zeta0` [S]
   (ζ0), `v0` [S, 3] (initial velocity).
 Shared by all samples: the topology (kNN springs, rest lengths, masses, soft-vector ranks),
@@ -60,8 +62,17 @@ from sgdr.skin.binding import IDWBinding, anchor_transpose
 # gained 1.4x (486 -> 351 s for one tiny posterior).
 _frozen_frame = frozen(ADJOINTS.get_named("recorded"), limit=16, warn_after=10**6)
 
-SAMPLE_FIELDS = {"dlog10_k": (), "kappa": (), "friction": (), "restitution": (), "zeta0": (), "v0": (3,)}
-"""Per-sample fields `batched_rollout` accepts, with the trailing shape of one sample's value."""
+SAMPLE_FIELDS = {
+    "dlog10_k": (),
+    "dlog10_k_anchor": ("N_A",),
+    "kappa": (),
+    "friction": (),
+    "restitution": (),
+    "zeta0": (),
+    "v0": (3,),
+}
+"""Per-sample fields `batched_rollout` accepts, with the trailing shape of one sample's value ("N_A": one
+value per anchor)."""
 
 
 def replicate_model(model: SpringModel, n_samples: int) -> SpringModel:
@@ -109,13 +120,14 @@ def _sample_values(base_params: PhysParams, samples: dict) -> tuple[int, dict]:
     arrays = {name: np.asarray(a, dtype=np.float64) for name, a in samples.items()}
     sizes = {name: a.shape[0] if a.ndim else 0 for name, a in arrays.items()}
     S = next(iter(sizes.values()))
+    n_anchors = int(to_numpy(base_params.log10_k).size)
     for name, a in arrays.items():
-        if a.shape != (S, *SAMPLE_FIELDS[name]) or S < 1:
-            raise PhysicsInputError(
-                f"samples[{name!r}] has shape {a.shape}, expected {(S, *SAMPLE_FIELDS[name])} (S={S} samples)"
-            )
+        shape = (S, *(n_anchors if d == "N_A" else d for d in SAMPLE_FIELDS[name]))
+        if a.shape != shape or S < 1:
+            raise PhysicsInputError(f"samples[{name!r}] has shape {a.shape}, expected {shape} (S={S} samples)")
     base = {
         "dlog10_k": np.zeros(1),
+        "dlog10_k_anchor": np.zeros((1, n_anchors)),
         "kappa": to_numpy(base_params.kappa).reshape(1),
         "friction": to_numpy(base_params.friction).reshape(1),
         "restitution": to_numpy(base_params.restitution).reshape(1),
@@ -193,7 +205,8 @@ def batched_rollout(
     stepper = _frozen_frame if freeze else ADJOINTS.get_named("recorded")
 
     base_log10_k = to_numpy(base_params.log10_k, np.float32)
-    log10_k = base_log10_k[None, :] + val["dlog10_k"].astype(np.float32)[:, None]  # [S, N_A] float32
+    shift = val["dlog10_k"][:, None] + val["dlog10_k_anchor"]  # [S, N_A]
+    log10_k = base_log10_k[None, :] + shift.astype(np.float32)  # [S, N_A] float32
     finite_params = np.isfinite(log10_k).all(axis=1)
     for name in ("kappa", "friction", "restitution", "zeta0", "v0"):
         finite_params &= np.isfinite(val[name].reshape(S, -1)).all(axis=1)

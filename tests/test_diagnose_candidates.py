@@ -188,7 +188,7 @@ def test_downscaled_cameras_match_block_means():
 
 
 def test_the_excess_gain_is_a_share_of_the_room_above_the_floor():
-    from sgdr.discrepancy.run import excess_gain
+    from sgdr.discrepancy.decision import excess_gain
 
     assert excess_gain(6.0, 10.0, 2.0) == pytest.approx(0.5)  # half of the 8 above the floor removed
     assert excess_gain(2.0, 10.0, 2.0) == pytest.approx(1.0)

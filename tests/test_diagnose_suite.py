@@ -178,7 +178,7 @@ def test_each_base_method_has_its_own_thresholds():
 
 
 def test_a_free_flight_cause_comes_before_a_contact_borne_one():
-    from sgdr.discrepancy.run import decide
+    from sgdr.discrepancy.decision import decide
 
     th = {"gravity": 0.15, "air_drag": 0.35, "ground_plane": 0.2}
     free = ["gravity", "air_drag"]
@@ -192,7 +192,7 @@ def test_a_free_flight_cause_comes_before_a_contact_borne_one():
 def test_a_cause_with_a_rival_as_good_is_flagged_ambiguous(monkeypatch):
     """Weaker gravity and drag both slow a fall: when both pass within diagnose.mimic_margin the
     named cause is kept but the other is reported as fitting as well; a clear winner is not flagged."""
-    from sgdr.discrepancy.run import rivals
+    from sgdr.discrepancy.decision import rivals
 
     th = {"gravity": 0.15, "air_drag": 0.35, "ground_plane": 0.2, "ground_tilt": 0.5}
     causes = {
@@ -231,7 +231,7 @@ def test_the_whole_fit_window_settles_a_tie_between_free_flight_mimics(monkeypat
     whole fit window (at least its threshold there) by diagnose.mimic_window_margin is named,
     without the ambiguity; a closer window gain, a missing or a negative one, or a rival outside
     free flight leaves the tie as it was."""
-    from sgdr.discrepancy.run import settle_mimics
+    from sgdr.discrepancy.decision import settle_mimics
 
     w = {"gravity": 0.737, "air_drag": 0.933}
     th = {"gravity": 0.15, "air_drag": 0.35}

@@ -40,7 +40,7 @@ from evaluation import ROOT
 from sgdr.config import compose
 from sgdr.discrepancy.candidates import CANDIDATES
 from sgdr.discrepancy.config import DiagnoseConfig
-from sgdr.discrepancy.run import decide, rivals, settle_mimics
+from sgdr.discrepancy.decision import decide, rivals, settle_mimics
 from sgdr.synth.objects import OBJECTS as REGISTRY
 
 NOMINAL_GRAVITY = 9.8

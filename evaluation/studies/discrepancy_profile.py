@@ -40,8 +40,9 @@ from omegaconf import OmegaConf
 import sgdr.backend
 import sgdr.config
 from sgdr.discrepancy.candidates import Evaluator
+from sgdr.discrepancy.decision import excess_gain
 from sgdr.discrepancy.measures import MEASURES
-from sgdr.discrepancy.run import excess_gain, frame0_floor
+from sgdr.discrepancy.run import frame0_floor
 from sgdr.physics.config import PhysicsConfig
 from sgdr.posterior.rollouts import ROLLOUTS
 from sgdr.run_folder import run_asset_and_sequence

@@ -173,7 +173,7 @@ def test_tiny_pipeline_scores_are_identical_at_one_and_two_threads(tmp_path, thr
         metrics = json.loads((out.run_dir / "metrics.json").read_text())
         for volatile in ("minutes", "stage_seconds", "stages_skipped"):
             metrics.pop(volatile)
-        for volatile in ("mlflow_run_id", "mlflow_tracking_uri", "git_dirty"):  # (a commit between the runs)
+        for volatile in ("mlflow_run_id", "mlflow_tracking_uri", "git_commit", "git_dirty"):  # (a commit between runs)
             metrics["provenance"].pop(volatile, None)
         scores.append(json.dumps(metrics, sort_keys=True))  # (a string: NaN scores compare too)
     assert scores[0] == scores[1]

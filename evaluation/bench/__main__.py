@@ -24,6 +24,9 @@ def available() -> list[str]:
 
 
 def main(argv: list[str]) -> int:
+    if any(a in ("-h", "--help") for a in argv):
+        print(f"{__doc__}\navailable: {available()}", file=sys.stderr)
+        return 0
     names = [a for a in argv if a] or available()
     unknown = [n for n in names if n not in available()]
     if unknown:

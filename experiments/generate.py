@@ -38,7 +38,6 @@ log = logging.getLogger("generate")
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg) -> None:
-
     with user_errors():
         validate(OmegaConf.to_object(cfg))
         sgdr.backend.init(cfg.backend, cfg.threads or None)
@@ -46,7 +45,6 @@ def main(cfg) -> None:
 
 
 def _generate(cfg) -> None:
-
     synth = OmegaConf.to_object(cfg.synth)
     names = list(OBJECTS) if synth.object == "all" else [synth.object]
     if synth.out and len(names) > 1:

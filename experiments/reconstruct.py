@@ -47,7 +47,6 @@ HEADLINE = (
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
-
     with user_errors():
         sgdr.backend.init(cfg.backend, cfg.threads or None)
         from sgdr.pipeline.run import run_pipeline

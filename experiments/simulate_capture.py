@@ -44,7 +44,6 @@ log = logging.getLogger("simulate_capture")
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg) -> None:
-
     with user_errors():
         c = OmegaConf.to_object(cfg)
         validate(c)

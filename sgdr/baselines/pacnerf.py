@@ -198,7 +198,6 @@ class ParticleSkin:
     average of its `k` nearest particles' displacements (sgdr.skin's displacement binding)."""
 
     def __init__(self, gaussians, particles: np.ndarray, k: int):
-
         self.gaussians = gaussians.detach()
         centres = gaussians.to_numpy()["means"]
         self.binding = IDWBinding.build(centres, particles, min(int(k), len(particles)), 2.0, "displacement")
@@ -209,7 +208,6 @@ class ParticleSkin:
         return self.binding.apply(ad().Array3f(*np.asarray(x, np.float32).T))
 
     def posed(self, x: np.ndarray):
-
         return posed(self.gaussians, self.centres(x))
 
 

@@ -102,7 +102,6 @@ def scene_meta(root: Path, layout: str, n_frames: int, recorded=None, scene_file
 
 
 def raise_missing_scene(root: Path, layout: str, missing: list[str]):
-
     raise SequenceError(
         f"{root}: the {layout} layout does not record the scene and nothing gave {', '.join(missing)}: pass "
         f"{_LAYOUT_HINT.get(layout, 'a scene file (scene_file=...)')}, or write {root / SCENE_FILE} "

@@ -39,7 +39,6 @@ import cv2
 
 
 def _disk(radius: int) -> np.ndarray:
-
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
 
 

@@ -172,7 +172,6 @@ def read_static_scan(static_dir: Path, obj: str) -> Sequence:
 
 
 def read_real_capture(root: Path, scene_file=None, **overrides) -> Sequence:
-
     root = Path(root)
     config = find_config(root, scene_file)
     cfg = read_spring_gaus_yaml(config)

@@ -265,7 +265,6 @@ class Evaluator:
     score: (observation, positions [T, N_A, 3]) -> D [V, F] (`sgdr.discrepancy.measures`)."""
 
     def __init__(self, asset, rollout, obs_fit, obs_held, obs_future, score):
-
         self.asset, self.rollout = asset, rollout
         self.values = dict(asset.values)  # the base's values and physics settings (`rebase` replaces them)
         self.settings: dict = {}

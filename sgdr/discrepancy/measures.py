@@ -81,12 +81,10 @@ def _render_scorer(asset, dc, render_cfg, seed):
 
 
 def _observe_points(seq, views, frames, dc, seed):
-
     return observation(seq, views, frames, dc.n_mask_points, seed=seed)
 
 
 def _points_scorer(asset, dc, render_cfg, seed):
-
     centre_map = CentreMap(asset, dc.n_points, seed)
 
     def score(obs, positions):

@@ -66,6 +66,7 @@ from sgdr.identify.config import ReconConfig
 from sgdr.identify.global_search import (
     CHOICES,
     REGION_PARAMETERS,
+    REGION_START,
     PopulationScorer,
     global_search,
     landscape,
@@ -79,8 +80,6 @@ from sgdr.registry import Registry
 from sgdr.render.images import posed, render
 
 log = logging.getLogger(__name__)
-
-REGION_START = {"region_theta": 0.5 * math.pi}  # a vertical plane; contrast 0: the regions start equal
 
 
 @dataclass
@@ -700,14 +699,10 @@ def _start(model, binding, g, v0, base, ground, targets, cameras, dt, n_t0, n_t_
         space = search_space(cfg.search, physics_cfg, model, dt, n_t_final, cfg.stiffness == "per_anchor")
         scorer = PopulationScorer(model, binding, g, base, ground, targets, cameras, dt, n_t_final, physics_cfg,
                                   render_cfg, lam, cfg.search.image_scale)  # fmt: skip
-        init = {  # the regions start equal (contrast 0), split by a vertical plane through the centre
-            n: float(physics_cfg.log10_k_init)
-            if n == "log10_k"
-            else REGION_START.get(n, 0.0)
-            if n in REGION_PARAMETERS
-            else scalar(getattr(base, n))
-            for n in space.names
+        init = {
+            n: REGION_START[n] if n in REGION_START else scalar(getattr(base, n)) for n in space.names if n != "log10_k"
         }
+        init["log10_k"] = float(physics_cfg.log10_k_init)  # (ignored when the level is not searched)
         found = global_search(scorer, space, init, cfg.search, seed, progress)
         found.landscape = landscape(scorer, found, cfg.search, n_predict, n_fit)
         start_info["search"] = found.to_json()

@@ -66,6 +66,9 @@ REGION_PARAMETERS = ("region_contrast", "region_theta", "region_phi", "region_of
 GLOBAL_PARAMETERS = ("log10_k", "kappa", "friction", "restitution", *REGION_PARAMETERS)
 """The global parameters the search may vary (recon.search.parameters)."""
 
+REGION_START = {"region_contrast": 0.0, "region_theta": 0.5 * math.pi, "region_phi": 0.0, "region_offset": 0.0}
+"""Where the search starts the regions: equal (contrast 0), split by a vertical plane through the centre."""
+
 REGION_WIDTH = 0.05
 """Width of the border between the two regions, in sizes (tanh's scale): sharp against the object,
 smooth enough that a small move of the plane changes the rollout a little."""
@@ -153,17 +156,14 @@ def stable_level(model, kappa_values, dt_frame: float, n_t: int, physics_cfg) ->
     return math.log10(physics_cfg.cfl_factor**2 / (dt * dt * worst))
 
 
-def search_space(
-    search_cfg, physics_cfg, model, dt_frame: float, n_t: int, per_anchor: bool | None = None
-) -> SearchSpace:
-    """The box of `recon.search.parameters` with the `recon.search.<name>_range` ranges
-    ; κ only where the soft vector acts, e only where the contact has one (physics.contact), the
-        two regions only with a per-anchor stiffness (`per_anchor`, recon.stiffness); log10 k capped
-        at the stability bound at n_t (`stable_level`; with regions, the stiffer side's level).
-        Raises SearchConfigError naming the key."""
+def search_space(search_cfg, physics_cfg, model, dt_frame: float, n_t: int, per_anchor: bool = True) -> SearchSpace:
+    """The box of `recon.search.parameters` with the `recon.search.<name>_range` ranges; κ only
+    where the soft vector acts, e only where the contact has one (physics.contact), the two
+    regions only with a per-anchor stiffness (`per_anchor`, recon.stiffness); log10 k capped at
+    the stability bound at n_t (`stable_level`; with regions, the stiffer side's level). Raises
+    SearchConfigError naming the key."""
 
     unknown = [n for n in search_cfg.parameters if n not in GLOBAL_PARAMETERS]
-    per_anchor = per_anchor if per_anchor is not None else True
     if unknown:
         raise SearchConfigError(f"recon.search.parameters: unknown {unknown}; known: {list(GLOBAL_PARAMETERS)}")
     contact = CONTACT_PARAMETERS.get_named(physics_cfg.contact)
@@ -282,7 +282,6 @@ class PopulationScorer:
         lam: float,
         image_scale: int = 1,
     ):
-
         k = int(image_scale)
         if k < 1:
             raise SearchConfigError(f"recon.search.image_scale={image_scale} must be a positive integer")
@@ -319,7 +318,6 @@ class PopulationScorer:
         return out
 
     def rollout(self, values: dict[str, np.ndarray], n_frames: int):
-
         return batched_rollout(
             self.model, self.base, self.samples(values), self.ground, n_frames, self.dt, self.n_t, self.physics_cfg
         )

@@ -83,7 +83,6 @@ class CentreMap:
     NumPy; linear in the anchors, so the subset is exact)."""
 
     def __init__(self, asset, n_points: int, seed: int = 0):
-
         cfg = asset.anchor_cfg
         rest = np.asarray(asset.rest_centres, float)
         idx = np.arange(rest.shape[0])

@@ -49,7 +49,6 @@ from sgdr.report.verdict import FIT_PSNR_FAIR, FIT_PSNR_GOOD, Verdict, baseline_
 
 
 def _pacnerf_scene(ctx: RunContext, particles: np.ndarray, n_frames: int):
-
     cfg, seq = ctx.cfg.baseline.pacnerf, ctx.seq
     spacing = _spacing(particles, cfg)
     return plan_scene(
@@ -67,7 +66,6 @@ def _spacing(gaussian_means: np.ndarray, cfg) -> float:
 
 # ---------------------------------------------------------------------- dynamics: fill + search
 def pacnerf_produce(ctx: RunContext, out: Path, ckpt) -> None:
-
     cfg, seq = ctx.cfg.baseline.pacnerf, ctx.seq
     g = ctx.gaussians.to_numpy()
     particles = fill_particles(g, _spacing(g["means"], cfg), cfg.fill_threshold)
@@ -165,7 +163,6 @@ def pacnerf_predict_load(ctx: RunContext, out: Path):
 
 # ---------------------------------------------------------------------- report
 def _scores_section(out: Path, scores: dict, n_fit: int):
-
     body = scores_table(scores)
     try:
         png = report.plot_metric_curves(out / "metric_curves.png", scores.get("per_frame", {}), n_fit)
@@ -195,7 +192,6 @@ def plot_search(path: Path, evaluated: list, best: tuple, E_box, nu_box) -> Path
 
 
 def pacnerf_report_produce(ctx: RunContext, out: Path, ckpt) -> None:
-
     cfg, seq, dyn, scores = ctx.cfg, ctx.seq, ctx.values["dynamics"], ctx.values["evaluate"]
     pc = cfg.baseline.pacnerf
     sections = [_scores_section(out, scores, seq.n_fit)]
@@ -316,7 +312,6 @@ FIT_FRAME_MODELS = {
 
 
 def _fit_targets(ctx: RunContext) -> list:
-
     return [frame_targets(ctx.seq, f) for f in range(ctx.seq.n_fit)]
 
 
@@ -414,7 +409,6 @@ def fit_frames_evaluate_produce(ctx: RunContext, out: Path, ckpt) -> None:
 
 
 def fit_frames_report_produce(model: str, ctx: RunContext, out: Path, ckpt) -> None:
-
     cfg, seq, dyn, scores = ctx.cfg, ctx.seq, ctx.values["dynamics"], ctx.values["evaluate"]
     what = FIT_FRAME_MODELS[model]
     sections = [_scores_section(out, scores, seq.n_fit)]

@@ -100,7 +100,6 @@ class RunContext:
 
 # ---------------------------------------------------------------------- 1. static fit (frame 0)
 def static_produce(ctx: RunContext, out: Path, ckpt) -> None:
-
     if "static" in ctx.seq.extras:  # a real capture: fit its static scan, register it into the dynamic frame
         return _static_real_capture(ctx, out)
     images = [ctx.seq.image(v, 0) for v in range(len(ctx.cameras))]
@@ -139,7 +138,6 @@ def static_load(ctx: RunContext, out: Path):
 
 # ---------------------------------------------------------------------- 2. anchors
 def anchors_produce(ctx: RunContext, out: Path, ckpt) -> None:
-
     a = ctx.cfg.anchors
     points = sample_anchors(ctx.static_centres, a.n_anchors, a.sampler, a.voxel_size, ctx.cfg.seed)
     np.save(out / "anchors.npy", np.asarray(points, dtype=np.float64))
@@ -154,7 +152,6 @@ def anchors_load(ctx: RunContext, out: Path) -> np.ndarray:
 
 # ---------------------------------------------------------------------- 3. appearance at the bound positions
 def refine_produce(ctx: RunContext, out: Path, ckpt) -> None:
-
     bound_means = ctx.binding.apply(points_to_array3(ctx.values["anchors"]))
     res = refine_appearance(
         ctx.values["static"],
@@ -176,7 +173,6 @@ def refine_load(ctx: RunContext, out: Path):
 
 # ---------------------------------------------------------------------- 4. v0 from the free-fall frames
 def velocity_produce(ctx: RunContext, out: Path, ckpt) -> None:
-
     seq = ctx.seq
     targets = {f: frame_targets(seq, f) for f in range(1, min(int(seq.hit_frame), int(seq.n_fit)))}
     res = fit_initial_velocity(
@@ -204,7 +200,6 @@ def velocity_load(ctx: RunContext, out: Path) -> dict:
 
 # ---------------------------------------------------------------------- 5. dynamic reconstruction
 def dynamics_produce(ctx: RunContext, out: Path, ckpt) -> None:
-
     seq, cfg = ctx.seq, ctx.cfg
     targets = [frame_targets(seq, f) for f in range(int(seq.n_fit))]
     res = fit_dynamics(
@@ -260,7 +255,6 @@ def dynamics_load(ctx: RunContext, out: Path) -> dict:
 
 # ---------------------------------------------------------------------- 6. prediction (fit frames from frame 0, then the future)
 def predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
-
     cfg, seq = ctx.cfg, ctx.seq
     params = physical_params(ctx.model, cfg.physics, ctx.identified)
     pred = predict(
@@ -285,7 +279,6 @@ def predict_produce(ctx: RunContext, out: Path, ckpt) -> None:
 
 
 def predict_load(ctx: RunContext, out: Path):
-
     with np.load(out / "trajectory.npz", allow_pickle=False) as z:
         a, c = z["anchors"], z["centres"]
     imgs = np.load(out / "images.npy", allow_pickle=False)
@@ -300,7 +293,6 @@ def predict_load(ctx: RunContext, out: Path):
 
 # ---------------------------------------------------------------------- 7. evaluation
 def evaluate_produce(ctx: RunContext, out: Path, ckpt) -> None:
-
     r = ctx.cfg.recon
     scores = evaluate_prediction(
         ctx.values["predict"], ctx.seq, with_emd=r.eval_emd, seed=ctx.cfg.seed, workers=r.eval_workers
@@ -359,7 +351,6 @@ def report_videos(ctx: RunContext, out: Path) -> list[tuple[Path, str]]:
 
 
 def report_produce(ctx: RunContext, out: Path, ckpt) -> None:
-
     cfg, seq, pred, dyn = ctx.cfg, ctx.seq, ctx.values["predict"], ctx.values["dynamics"]
     videos = report_videos(ctx, out)
     scores = ctx.values["evaluate"]
@@ -401,7 +392,6 @@ def report_load(ctx: RunContext, out: Path) -> list[str]:
 
 # ---------------------------------------------------------------------- 9. the simulatable asset
 def asset_produce(ctx: RunContext, out: Path, ckpt) -> None:
-
     save_asset(
         out,
         ctx.gaussians,
@@ -417,7 +407,6 @@ def asset_produce(ctx: RunContext, out: Path, ckpt) -> None:
 
 
 def asset_load(ctx: RunContext, out: Path):
-
     return load_asset(out)
 
 

@@ -94,7 +94,6 @@ class LogProbability:
     positions -> centres; frames: the observation's frame indices into the rollout."""
 
     def __init__(self, problem: Problem, rollout_fn, centre_map, likelihood):
-
         self.problem, self.rollout_fn, self.centre_map, self.likelihood = problem, rollout_fn, centre_map, likelihood
         self._discrepancy = discrepancy
         self.calls = 0  # rollouts run (the cost)
@@ -153,11 +152,9 @@ class LogitSpace:
         self.low, self.width = problem.low, problem.high - problem.low
 
     def to_theta(self, z: np.ndarray) -> np.ndarray:
-
         return self.low + self.width * expit(z)
 
     def to_z(self, theta: np.ndarray) -> np.ndarray:
-
         return logit((np.asarray(theta, float) - self.low) / self.width)
 
     def log_jacobian(self, z: np.ndarray) -> np.ndarray:

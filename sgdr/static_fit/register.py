@@ -84,7 +84,6 @@ def euler_xyz_deg(angles) -> np.ndarray:
 
 
 def _rotate_quaternions(q: np.ndarray, R: np.ndarray) -> np.ndarray:
-
     q = np.asarray(q, dtype=np.float64)
     rot = Rotation.from_matrix(R) * Rotation.from_quat(q[:, [1, 2, 3, 0]])  # scipy: (x, y, z, w)
     xyzw = rot.as_quat()

@@ -77,7 +77,6 @@ def flatten_config(cfg: Any, prefix: str = "") -> dict[str, Any]:
 
 
 def _to_plain(cfg: Any) -> Any:
-
     if is_dataclass(cfg) and not isinstance(cfg, type):
         return asdict(cfg)
 
@@ -236,7 +235,6 @@ class RunTracker:
 
     # ------------------------------------------------------------------ lifecycle
     def __enter__(self) -> RunTracker:
-
         self.out_dir.mkdir(parents=True, exist_ok=True)
         (self.out_dir / "config.yaml").write_text(yaml.safe_dump(_to_plain(self.cfg), sort_keys=False))
         self.provenance = git_provenance()

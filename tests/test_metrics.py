@@ -50,6 +50,30 @@ def test_emd_matches_brute_force_over_permutations(rng):
         assert earth_movers_distance(a, b) == pytest.approx(best, rel=1e-12)
 
 
+def test_emd_by_network_simplex_equals_the_exact_assignment(rng, monkeypatch):
+    from scipy.optimize import linear_sum_assignment
+
+    import sgdr.evaluate.geometry as geometry
+
+    def by_scipy(a, b):
+        cost = np.linalg.norm(a[:, None] - b[None], axis=-1)
+        rows, cols = linear_sum_assignment(cost)
+        return cost[rows, cols].mean()
+
+    # uniform, and a deformed copy (near-ties, as consecutive frames of one object give)
+    a = rng.random((700, 3))
+    cases = [(a, rng.random((700, 3))), (a, a * [1.0, 1.1, 0.8] + 0.01 * rng.standard_normal(a.shape))]
+    for x, y in cases:
+        assert earth_movers_distance(x, y, n_points=700) == pytest.approx(by_scipy(x, y), rel=1e-9)
+    # unequal sizes: the smaller set matched entirely (scipy's partial assignment)
+    x, y = rng.random((300, 3)), rng.random((450, 3))
+    assert earth_movers_distance(x, y) == pytest.approx(by_scipy(x, y), rel=1e-12)
+    # a simplex stopped short of optimal is not trusted: the exact assignment is used
+    monkeypatch.setattr(geometry, "EMD_SIMPLEX_MAX_ITERATIONS", 3)
+    x, y = cases[0]
+    assert earth_movers_distance(x, y, n_points=700) == pytest.approx(by_scipy(x, y), rel=1e-12)
+
+
 def test_emd_of_many_pairs_on_workers_equals_the_serial_calls(rng):
     # Subsampling included (600 > n_points): the workers must draw the same seeded subsets.
     pairs = [(rng.random((600, 3)), rng.random((500, 3)) + 0.1 * k) for k in range(3)]

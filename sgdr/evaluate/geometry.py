@@ -7,8 +7,12 @@ depend on how many Gaussians a reconstruction happens to keep.
 
 - Chamfer distance: mean squared nearest-neighbour distance from A to B plus from B to A,
   on 8192 points per set, reported x1e3 (scene units², the benchmark lives in a unit cube).
-- Earth mover's distance: exact optimal assignment (scipy `linear_sum_assignment`) between
-  2048 points per set; the mean *unsquared* Euclidean distance of the assigned pairs.
+- Earth mover's distance: exact optimal assignment between 2048 points per set; the mean
+  *unsquared* Euclidean distance of the assigned pairs. Solved as the transport problem with
+  uniform weights by POT's network simplex (`ot.emd`), whose optimum is an optimal assignment
+  (Birkhoff): the same value as scipy's `linear_sum_assignment` (checked to 1e-9 relative in
+  tests/test_evaluate.py) in 0.4-0.5 s per frame instead of 0.4-2.3 s at small. Sets of unequal size
+  (a partial assignment) and a network simplex that stops short of optimal use scipy's solver.
   `earth_movers_distances` scores many pairs (one per frame) on worker processes: each
   pair's assignment is the same exact, single-threaded computation, only run side by side.
 """
@@ -17,6 +21,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import warnings
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
@@ -75,8 +80,30 @@ def earth_movers_distance(pred, gt, n_points: int = EMD_POINTS, seed: int = 0) -
     a = subsample(_as_points(pred, "emd pred"), n_points, seed)
     b = subsample(_as_points(gt, "emd gt"), n_points, seed)
     cost = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=-1)  # [N', M']
+    if a.shape[0] == b.shape[0]:
+        value = _assignment_by_network_simplex(cost)
+        if value is not None:
+            return value
     rows, cols = linear_sum_assignment(cost)
     return float(cost[rows, cols].mean())
+
+
+EMD_SIMPLEX_MAX_ITERATIONS = 10**9  # POT's default (1e5) stops short of optimal at 2048 points
+
+
+def _assignment_by_network_simplex(cost: np.ndarray) -> float | None:
+    """Mean cost of the optimal assignment of a square cost matrix, by POT's network simplex on
+    uniform weights; None when the solver reports anything but an optimum."""
+    import ot  # POT: 1.1 s to import, only the evaluation needs it
+
+    n = cost.shape[0]
+    w = np.full(n, 1.0 / n)
+    with warnings.catch_warnings():  # a stop short of optimal is handled here: not the user's concern
+        warnings.simplefilter("ignore", UserWarning)
+        plan, log = ot.emd(w, w, cost, numItermax=EMD_SIMPLEX_MAX_ITERATIONS, log=True)
+    if int(log["result_code"]) != 1:  # 1: optimal
+        return None
+    return float(np.sum(plan * cost))
 
 
 def _emd_of_pair(args) -> float:

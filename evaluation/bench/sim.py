@@ -6,6 +6,8 @@ Measures, on the active Dr.Jit backend (LLVM by default):
   (tracing + compilation, or kernel-cache load) is reported separately; median wall time of
   the timed calls, plus the kernels' own execution time from Dr.Jit's kernel history;
 - one frame at 512 x 64 with spring plasticity over the elastic one (plastic_over_elastic_small);
+- the gather-bound loop (`_gather_bound`): the forward's memory accesses with the least
+  arithmetic, the roofline the forward is compared with (`fraction_of_gather_bound`);
 - the float64 NumPy twin (sgdr/physics/reference.py) on the same systems in the same run,
   and the ratio;
 - gradient cost over forward cost (default `physics.adjoint="gather"`, and `"recorded"` for
@@ -84,6 +86,59 @@ def _forward(n_anchors: int, n_k: int, reps: int, **cfg_overrides) -> dict:
         "wall_s": wall,
         "kernel_s": kernel,
     }
+
+
+def _gather_bound(n_anchors: int, n_k: int, reps: int) -> float:
+    """Spring-steps per second of the least a substep must do: the same per-anchor sum loop over
+    the same springs with the same memory accesses as the simulator's forward (gather j and l_ij
+    at the spring, x_j and v_j at j: 8 floats gathered per spring) and the least arithmetic (a
+    Hookean spring plus damping; no soft vector, no law, no contact), then the Euler update and
+    one `dr.eval(x, v)`. Same system, same timing as `_forward`: the roofline of this machine for
+    this loop, measured rather than estimated from the gather's instruction tables."""
+    import drjit as dr
+
+    from sgdr.backend import ad
+
+    t = ad()
+    cfg, model, params, state, ground = _system(n_anchors, n_k)
+    k = dr.opaque(t.Float, 300.0)
+    dt = dr.opaque(t.Float, 1.0 / (FPS * N_SUB))
+    g = t.Array3f(0.0, 0.0, -9.8)
+    base = dr.arange(t.UInt32, n_anchors) * n_k
+
+    def forces(x, v):
+        def body(r, f):
+            s = base + r
+            j = dr.gather(t.UInt32, model.spring_j, s)
+            l = dr.gather(t.Float, model.spring_rest_length, s)
+            xj, vj = dr.gather(t.Array3f, x, j), dr.gather(t.Array3f, v, j)
+            d = x - xj
+            inv = dr.rsqrt(dr.maximum(dr.squared_norm(d), 1e-12))
+            return r + 1, f - (k * (dr.squared_norm(d) * inv - l) + 0.1 * dr.dot(v - vj, d) * inv) * inv * d
+
+        _, f = dr.while_loop(
+            state=(dr.zeros(t.UInt32, n_anchors), dr.zeros(t.Array3f, n_anchors)),
+            cond=lambda r, f: r < n_k,
+            body=body,
+            max_iterations=-1,
+        )
+        return f
+
+    def frame(x, v):
+        for _ in range(N_SUB):
+            v = v + dt * (forces(x, v) + g)
+            x = x + dt * v
+            dr.eval(x, v)
+        dr.sync_thread()
+
+    x0, v0 = dr.detach(state.x), dr.detach(state.v)
+    frame(x0, v0)  # warm-up: trace + compile
+    walls = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        frame(x0, v0)
+        walls.append(time.perf_counter() - t0)
+    return n_anchors * n_k * N_SUB / statistics.median(walls)
 
 
 def _numpy_twin(n_anchors: int, n_k: int, n_steps: int) -> float:
@@ -202,6 +257,8 @@ def run() -> dict:
     small = _forward(512, 64, reps=5)
     log("forward 512 x 64 with spring plasticity (physics.plastic_yield_strain=0.1)")
     plastic = _forward(512, 64, reps=5, plastic_yield_strain=0.1)
+    log("the gather-bound loop at 2048 x 256 (the roofline reference)")
+    bound = _gather_bound(2048, 256, reps=3)
     log("numpy twin")
     np_big = _numpy_twin(2048, 256, n_steps=3)
     np_small = _numpy_twin(512, 64, n_steps=5)
@@ -217,6 +274,9 @@ def run() -> dict:
         "spring_steps_per_s": big["steps_per_s"],
         "spring_steps_per_s_small": small["steps_per_s"],
         "numpy_ratio": big["steps_per_s"] / np_big,
+        # the same loop's memory accesses with the least arithmetic, same run: what this CPU allows
+        "gather_bound_spring_steps_per_s": bound,
+        "fraction_of_gather_bound": big["steps_per_s"] / bound,
         "grad_over_forward": grad["grad_over_forward"],
         "peak_memory_gib": mem["peak_rss_gib"],
         "peak_memory_method": "ru_maxrss of a fresh child process running the 20x100 full gradient",

@@ -230,6 +230,36 @@ def image_loss(pred, target, lam: float, border: str = "valid"):
     return (1.0 - float(lam)) * l1(pred, target) + float(lam) * dssim(pred, target, border)
 
 
+def image_losses(pred, target, lam: float):
+    """`image_loss` (border 'valid') of each of B image pairs at once: Float [B].
+
+    pred, target: TensorXf [B, H, W, C]. No gradients (the global search's scores). The
+    Gaussian filter runs over the B images stacked as one [B H, W, C] image; its 'valid' rows
+    that straddle two images are computed and dropped, so every kept SSIM value sees one image
+    only and equals the single-image one to float rounding."""
+    t = ad()
+    a, b = _tensor(pred, "pred"), _tensor(target, "target")
+    if a.ndim != 4 or a.shape != b.shape:
+        raise LossError(f"image_losses: pred and target must both be [B, H, W, C]; got {a.shape} and {b.shape}")
+    n, h, w, c = a.shape
+    taps = gaussian_window()
+    r = (len(taps) - 1) // 2
+    if h <= 2 * r or w <= 2 * r:
+        raise LossError(f"SSIM needs images larger than {2 * r + 1}x{2 * r + 1} pixels, got {a.shape[1:]}")
+    with dr.suspend_grad():
+        xa, xb = a.array, b.array
+        per_image = h * w * c
+        l1_sum = dr.block_sum(dr.abs(xa - xb), per_image)  # [B]
+        *_, S = _ssim_terms(xa, xb, n * h, w, c, taps)  # rows 0 .. n h - 2r - 1 of the stacked image
+        ho, wo = h - 2 * r, w - 2 * r
+        per_map = ho * wo * c
+        k = dr.arange(t.UInt32, n * per_map)
+        img, rem = k // per_map, k % per_map  # rem = (y wo + x) c + channel, y < ho: inside image img
+        S_valid = dr.gather(t.Float, S, img * dr.opaque(t.UInt32, h * wo * c) + rem)
+        ssim_mean = dr.block_sum(S_valid, per_map) / float(per_map)
+        return (1.0 - float(lam)) * l1_sum / float(per_image) + float(lam) * (1.0 - ssim_mean)
+
+
 def mask_loss(alpha, mask):
     """Mean absolute difference between rendered accumulated opacity and a mask, both [H, W]
     (or [H, W, 1]) in [0, 1]."""

@@ -132,3 +132,20 @@ def test_ssim_custom_adjoint_matches_recorded_ad(rng, border):
     for ours, ref in ((ga, ra), (gb, rb)):
         assert np.abs(ref).max() > 1e-5
         np.testing.assert_allclose(ours, ref, atol=1e-4 * np.abs(ref).max())
+
+
+def test_image_losses_of_a_batch_equal_each_image_loss():
+    """The stacked filter drops the rows that straddle two images: each loss is the single one."""
+    from sgdr.loss import image_losses
+
+    t = ad()
+    rng = np.random.default_rng(3)
+    a = rng.random((4, 17, 23, 3)).astype(np.float32)
+    b = np.clip(a + 0.2 * rng.normal(size=a.shape), 0, 1).astype(np.float32)
+    b[2] = 0.0  # one image far off: a neighbour's window must not borrow from it
+    got = np.asarray(image_losses(t.TensorXf(a), t.TensorXf(b), 0.2), dtype=np.float64)
+    for i in range(4):
+        want = float(np.asarray(image_loss(t.TensorXf(a[i]), t.TensorXf(b[i]), 0.2).array)[0])
+        assert got[i] == pytest.approx(want, rel=1e-5)
+    with pytest.raises(LossError, match=r"\[B, H, W, C\]"):
+        image_losses(t.TensorXf(a[0]), t.TensorXf(b[0]), 0.2)

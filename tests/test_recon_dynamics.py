@@ -341,6 +341,40 @@ def test_the_global_search_finds_the_twins_stiffness_and_friction_and_repeats(sc
     assert abs(sobol.search["best"]["log10_k"] - TRUE["log10_k"]) < 0.1
 
 
+def test_a_population_scored_in_batched_renders_equals_one_image_at_a_time(scene):
+    """recon.search.images_per_call: the atlas renders and stacked losses give each candidate the
+    loss of the per-image path (float rounding), in chunks that split candidates' frames; an
+    unstable candidate scores UNSTABLE_LOSS either way."""
+    from sgdr.identify.global_search import UNSTABLE_LOSS, PopulationScorer
+
+    s = scene
+    targets = [frame_targets(s["seq"], f) for f in range(7)]
+    base = physical_params(
+        s["model"], s["pcfg"], {"log10_k": 3.0, "friction": 0.6, "v0": s["v0"], "gravity": (0, 0, -9.8)}
+    )
+    args = (
+        s["model"],
+        s["binding"],
+        s["bound"],
+        base,
+        s["ground"],
+        targets,
+        s["cams"],
+        1 / FPS,
+        40,
+        s["pcfg"],
+        s["rcfg"],
+        0.2,
+    )
+    values = {"log10_k": np.array([2.6, 3.0, 3.3, 9.0]), "friction": np.array([0.2, 0.6, 0.9, 0.5])}
+    one = PopulationScorer(*args, image_scale=1, images_per_call=1)(values)
+    for per_call in (7, 200):  # 2 poses (6 images) per program; all 18 images of every candidate at once
+        batched = PopulationScorer(*args, image_scale=1, images_per_call=per_call)(values)
+        np.testing.assert_allclose(batched[:3], one[:3], rtol=1e-5, atol=1e-7)  # the truth: 0 vs 6e-9
+        assert batched[3] == one[3] == UNSTABLE_LOSS
+    assert one[1] < one[0]  # the truth fits better than a softer guess: the losses say something
+
+
 def test_the_search_space_skips_what_the_physics_lacks_and_caps_the_stiffness_at_the_stability_bound(scene):
     from sgdr.identify.config import SearchConfig
     from sgdr.identify.global_search import SearchConfigError, search_space, stable_level

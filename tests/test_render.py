@@ -259,3 +259,23 @@ def test_argsort_tile_sort_path_agrees(rng, monkeypatch):
     out = render(Gaussians.from_numpy(**p), cam, cfg)
     np.testing.assert_allclose(_np(out.rgb), rgb, atol=1e-4)
     np.testing.assert_allclose(_np(out.alpha), alpha, atol=1e-4)
+
+
+def test_render_batch_equals_each_render_and_keeps_footprints_in_their_image(rng):
+    """Poses x views in one atlas equal the single renders (float rounding), with an image size
+    that is not a multiple of the tile and Gaussians large enough to spill past the image's
+    edges (a footprint reaching into a neighbouring cell would show there)."""
+    from sgdr.render.splat import render_batch
+
+    cfg = RenderConfig()
+    cams = [_camera(eye=e) for e in [(0.5, -1.5, 0.6), (1.6, 0.5, 0.9), (-0.4, 1.4, 0.3)]]
+    poses = [_scene(rng, 60, lo=0.2, hi=0.8, s=(0.05, 0.15)) for _ in range(2)]
+    stacked = Gaussians.from_numpy(**{k: np.concatenate([p[k] for p in poses]) for k in poses[0]})
+    out = _np(render_batch(stacked, 2, cams, cfg)).reshape(6, 36, 40, 3)
+    for b in range(6):
+        single = _np(render(Gaussians.from_numpy(**poses[b // 3]), cams[b % 3], cfg).rgb).reshape(36, 40, 3)
+        np.testing.assert_allclose(out[b], single, atol=2e-5)
+    with pytest.raises(RenderError, match="one image size"):
+        render_batch(stacked, 2, [cams[0], _camera(w=32)], cfg)
+    with pytest.raises(RenderError, match="do not split into 7 poses"):
+        render_batch(stacked, 7, cams, cfg)

@@ -5,12 +5,15 @@ open-loop rollout of the fit frames and its renders on every view. At the small 
 (N_A = 512 anchors of the benchmark torus, n_k = 64, n_t = 150, 20 fit frames at 24 fps, M =
 4000 Gaussians bound to them, 10 views at 64 x 64 pixels: the small preset's 128 x 128 images at
 recon.search.image_scale 2) it scores a population of S = 8 candidates
-- batched: one `PopulationScorer` call (one S x N_A rollout, then the renders), and
-- one at a time: S calls of one candidate each,
+- batched: one `PopulationScorer` call (one S x N_A rollout, then the renders and losses of
+  `recon.search.images_per_call` images per program: `render_batch`, `image_losses`),
+- batched rollout, one render per image: the same call with images_per_call = 1, and
+- one at a time: S calls of one candidate each, one render per image,
 in the same run, interleaved, after a warm-up call of each (tracing + compilation). Reported:
-candidates per second of both, the speed-up (`batched_over_single`), the rollout's share of a
-batched call, and the largest difference between the two's losses (they score the same
-candidates: float32 rounding only). Median over REPS calls; the minima beside them.
+candidates per second of each, the speed-ups (`batched_over_single`: the first over the last;
+`batched_render_over_per_image`: the first over the second), the rollout's share of a batched
+call, and the largest difference between the losses (they score the same candidates: float32
+rounding only). Median over REPS calls; the minima beside them.
 """
 
 from __future__ import annotations
@@ -83,12 +86,22 @@ def _scene():
 
 def run() -> dict:
     scorer, values = _scene()
+    from sgdr.identify.config import SearchConfig
+
     one = [{k: v[i : i + 1] for k, v in values.items()} for i in range(S)]
 
+    per_call = int(SearchConfig().images_per_call)
+
     def batched():
+        scorer.images_per_call = per_call
+        return scorer(values)
+
+    def per_image():
+        scorer.images_per_call = 1
         return scorer(values)
 
     def single():
+        scorer.images_per_call = 1
         return np.concatenate([scorer(v) for v in one])
 
     t0 = time.perf_counter()
@@ -97,7 +110,8 @@ def run() -> dict:
     t0 = time.perf_counter()
     ls = single()
     warm_single = time.perf_counter() - t0
-    tb, ts, tr = [], [], []
+    lp = per_image()
+    tb, ts, tr, tp = [], [], [], []
     for rep in range(REPS):
         print(f"identify bench: rep {rep + 1}/{REPS}", file=sys.stderr)
         t0 = time.perf_counter()
@@ -106,6 +120,9 @@ def run() -> dict:
         t0 = time.perf_counter()
         single()
         ts.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        per_image()
+        tp.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
         scorer.rollout(values, N_FIT)
         tr.append(time.perf_counter() - t0)
@@ -122,11 +139,16 @@ def run() -> dict:
         "single_candidates_per_s": S / ms,
         "batched_over_single": ms / mb,
         "batched_over_single_of_minima": min(ts) / min(tb),
+        "per_image_candidates_per_s": S / statistics.median(tp),
+        "batched_render_over_per_image": statistics.median(tp) / mb,
+        "images_per_call": per_call,
         "rollout_share_of_batched": statistics.median(tr) / mb,
         "batched_s_each": tb,
         "single_s_each": ts,
+        "per_image_s_each": tp,
         "warmup_batched_s": warm_batched,
         "warmup_single_s": warm_single,
         "max_loss_diff": float(np.max(np.abs(lb - ls))),
+        "max_loss_diff_per_image": float(np.max(np.abs(lp - ls))),
         "losses": lb.tolist(),
     }

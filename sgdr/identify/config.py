@@ -50,6 +50,7 @@ class SearchConfig:
     initial_samples: int = 0  # scrambled Sobol points over the whole box scored first; CMA-ES starts at their best
     #                           (0: CMA-ES starts at physics.*_init)
     image_scale: int = 1  # candidates are scored on images downscaled by this (k x k block means)
+    images_per_call: int = 200  # rendered and scored together (sgdr.render.splat.render_batch); 1 = one at a time
     top_k: int = 5  # candidates whose futures the report compares (within equivalent_tolerance of the best)
     equivalent_tolerance: float = 0.05  # relative loss within which candidates count as fitting equally well
     spread_warning: float = 0.25  # warn when their predicted centres of mass part by more than this x the size
@@ -129,6 +130,7 @@ SEARCH_CHECKS = {
     "kappa_range": vector(2),
     "friction_range": vector(2),
     "restitution_range": vector(2),
+    "images_per_call": at_least(1),
     "region_contrast_range": vector(2),
     "region_theta_range": vector(2),
     "region_phi_range": vector(2),

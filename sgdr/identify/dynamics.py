@@ -698,7 +698,7 @@ def _start(model, binding, g, v0, base, ground, targets, cameras, dt, n_t0, n_t_
     if cfg.search.parameters:
         space = search_space(cfg.search, physics_cfg, model, dt, n_t_final, cfg.stiffness == "per_anchor")
         scorer = PopulationScorer(model, binding, g, base, ground, targets, cameras, dt, n_t_final, physics_cfg,
-                                  render_cfg, lam, cfg.search.image_scale)  # fmt: skip
+                                  render_cfg, lam, cfg.search.image_scale, cfg.search.images_per_call)  # fmt: skip
         init = {
             n: REGION_START[n] if n in REGION_START else scalar(getattr(base, n)) for n in space.names if n != "log10_k"
         }

@@ -53,12 +53,14 @@ import numpy as np
 
 from sgdr.arrays import array3_to_points, to_numpy
 from sgdr.backend import ad
-from sgdr.loss import image_loss
+from sgdr.gaussians.model import Gaussians
+from sgdr.loss import image_loss, image_losses
 from sgdr.observe.images import block_mean, downscaled
-from sgdr.physics.batched import batched_rollout
+from sgdr.physics.batched import batched_centres, batched_rollout
 from sgdr.physics.laws import CONTACT_PARAMETERS
 from sgdr.physics.simulate import effective_stiffness, model_host
 from sgdr.render.images import posed, render
+from sgdr.render.splat import render_batch
 
 log = logging.getLogger(__name__)
 
@@ -281,8 +283,12 @@ class PopulationScorer:
         render_cfg,
         lam: float,
         image_scale: int = 1,
+        images_per_call: int = 1,
     ):
         k = int(image_scale)
+        if int(images_per_call) < 1:
+            raise SearchConfigError(f"recon.search.images_per_call={images_per_call} must be a positive integer")
+        self.images_per_call = int(images_per_call)
         if k < 1:
             raise SearchConfigError(f"recon.search.image_scale={image_scale} must be a positive integer")
         t = ad()
@@ -303,6 +309,7 @@ class PopulationScorer:
         self.base_level = float(np.mean(to_numpy(base.log10_k)))
         self.image_scale = k
         self.x_rest = np.asarray(array3_to_points(model.x_rest), float)
+        self.stacked_targets, self.fields = None, None  # built on the first batched call
 
     def samples(self, values: dict[str, np.ndarray]) -> dict:
         """Candidate values -> `batched_rollout` samples (a level is a shift of the base field)."""
@@ -324,12 +331,22 @@ class PopulationScorer:
 
     def __call__(self, values: dict[str, np.ndarray]) -> np.ndarray:
         """[S] losses of the candidates {name: [S] values}."""
-
-        t = ad()
         run = self.rollout(values, len(self.targets))
         losses = np.full(run.positions.shape[0], UNSTABLE_LOSS)
+        stable = np.flatnonzero(run.stable)
+        if stable.size == 0:
+            return losses
+        scores = self._batched(run.positions[stable]) if self.images_per_call > 1 else self._one_at_a_time(run, stable)
+        for s, value in zip(stable, scores):
+            losses[s] = value if math.isfinite(value) else UNSTABLE_LOSS
+        return losses
+
+    def _one_at_a_time(self, run, stable) -> list[float]:
+        """Each candidate's mean loss, one render and one loss per (frame, view)."""
+        t = ad()
+        out = []
         with dr.suspend_grad():
-            for s in np.flatnonzero(run.stable):
+            for s in stable:
                 total = t.Float(0.0)
                 for f in range(1, len(self.targets)):
                     x = run.positions[s, f].astype(np.float32)
@@ -337,9 +354,36 @@ class PopulationScorer:
                     for v, cam in enumerate(self.cameras):
                         total += image_loss(render(g, cam, self.render_cfg).rgb, self.targets[f][v], self.lam)
                     dr.eval(total)
-                value = float(to_numpy(total)[0]) / ((len(self.targets) - 1) * len(self.cameras))
-                losses[s] = value if math.isfinite(value) else UNSTABLE_LOSS
-        return losses
+                out.append(float(to_numpy(total)[0]) / ((len(self.targets) - 1) * len(self.cameras)))
+        return out
+
+    def _batched(self, positions: np.ndarray) -> list[float]:
+        """The same means as `_one_at_a_time` (to float rounding) from `render_batch` and
+        `image_losses`: about images_per_call images per program (whole frames of all views)."""
+        t = ad()
+        n_views, n_frames = len(self.cameras), len(self.targets) - 1
+        if self.stacked_targets is None:
+            self.stacked_targets = np.stack(
+                [[to_numpy(img, np.float32) for img in frame] for frame in self.targets[1:]]
+            )
+            self.fields = {f: np.asarray(v) for f, v in self.gaussians.to_numpy().items()}
+        centres = batched_centres(self.binding, positions[:, 1 : n_frames + 1])  # [K, F, M, 3]
+        poses = [(k, f) for k in range(centres.shape[0]) for f in range(n_frames)]
+        per_call = max(1, self.images_per_call // n_views)
+        image_losses_all = []
+        with dr.suspend_grad():
+            for start in range(0, len(poses), per_call):
+                chunk = poses[start : start + per_call]
+                means = np.concatenate([centres[k, f] for k, f in chunk])
+                g = Gaussians.from_numpy(means, *(np.tile(self.fields[n], (len(chunk),) + (1,) * (self.fields[n].ndim - 1))
+                                                 for n in ("log_scales", "rotations", "color_logits", "opacity_logits")))  # fmt: skip
+                pred = render_batch(g, len(chunk), self.cameras, self.render_cfg)
+                target = self.stacked_targets[[f for _, f in chunk]].reshape((-1,) + self.stacked_targets.shape[2:])
+                image_losses_all.append(
+                    to_numpy(image_losses(pred, t.TensorXf(np.ascontiguousarray(target)), self.lam))
+                )
+        per_image = np.concatenate(image_losses_all).reshape(centres.shape[0], n_frames * n_views)
+        return [float(v) for v in per_image.astype(np.float64).mean(axis=1)]
 
 
 def landscape(scorer: PopulationScorer, result: GlobalSearchResult, search_cfg, n_frames: int, n_fit: int) -> Landscape:

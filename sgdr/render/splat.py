@@ -130,18 +130,32 @@ def _quat_to_matrix(q):
     )
 
 
+def camera_constants(camera: Camera, cfg: RenderConfig) -> np.ndarray:
+    """The 18 numbers of a view that phase 1 reads, float64 [18]: R (row-major, 9), t (3), fx, fy,
+    cx, cy and the guard band's limits of x/z and y/z."""
+    K = np.asarray(camera.K, np.float64)
+    lim_x = cfg.guard_band * 0.5 * camera.width / K[0, 0]
+    lim_y = cfg.guard_band * 0.5 * camera.height / K[1, 1]
+    return np.concatenate(
+        [np.asarray(camera.R, np.float64).ravel(), np.asarray(camera.t, np.float64).ravel(),
+         [K[0, 0], K[1, 1], K[0, 2], K[1, 2], lim_x, lim_y]]
+    )  # fmt: skip
+
+
 def project(g: Gaussians, camera: Camera, cfg: RenderConfig) -> Projected:
     """Phase 1: EWA projection of every Gaussian (recorded AD; one thread per Gaussian)."""
     t = ad()
-
     # camera constants as opaque JIT scalars: one compiled kernel serves every view
-    def c(x):
-        return dr.opaque(t.Float, float(x))
+    return project_with(g, [dr.opaque(t.Float, float(x)) for x in camera_constants(camera, cfg)], cfg)
 
-    R = [[c(v) for v in row] for row in camera.R]
-    tc = [c(v) for v in camera.t]
-    fx, fy = c(camera.K[0, 0]), c(camera.K[1, 1])
-    cx, cy = c(camera.K[0, 2]), c(camera.K[1, 2])
+
+def project_with(g: Gaussians, constants: list, cfg: RenderConfig) -> Projected:
+    """`project` with the view's 18 constants (`camera_constants`) given as Dr.Jit values: opaque
+    scalars (one view), or one per Gaussian (`render_batch`: each Gaussian seen by its own view)."""
+    t = ad()
+    R = [constants[0:3], constants[3:6], constants[6:9]]
+    tc = constants[9:12]
+    fx, fy, cx, cy, lim_x, lim_y = constants[12:18]
     m = g.means
     # camera-space centre p = W μ + t  (OpenCV axes, z forward)
     p = [R[r][0] * m.x + R[r][1] * m.y + R[r][2] * m.z + tc[r] for r in range(3)]
@@ -152,8 +166,6 @@ def project(g: Gaussians, camera: Camera, cfg: RenderConfig) -> Projected:
     u = fx * p[0] * inv_z + cx
     v = fy * p[1] * inv_z + cy
     # Jacobian of the perspective map at p, with the 3DGS guard-band clamp of x/z, y/z
-    lim_x = c(cfg.guard_band * 0.5 * camera.width / camera.K[0, 0])
-    lim_y = c(cfg.guard_band * 0.5 * camera.height / camera.K[1, 1])
     tx = dr.clip(p[0] * inv_z, -lim_x, lim_x)
     ty = dr.clip(p[1] * inv_z, -lim_y, lim_y)
     J = ((fx * inv_z, 0.0, -fx * tx * inv_z), (0.0, fy * inv_z, -fy * ty * inv_z))
@@ -191,18 +203,26 @@ def project(g: Gaussians, camera: Camera, cfg: RenderConfig) -> Projected:
 
 
 # ---------------------------------------------------------------------------- phase 2
-def tile_rects(u, v, radius, width: int, height: int, tile: int):
-    """Tile rectangle [x0, x1) x [y0, y1) covered by each footprint (3DGS `getRect`)."""
+def tile_rects(u, v, radius, width: int, height: int, tile: int, cells=None):
+    """Tile rectangle [x0, x1) x [y0, y1) covered by each footprint (3DGS `getRect`), clamped to
+    the image's tiles, or with `cells` = (first tile column, first tile row) Float per Gaussian
+    and (tiles across, tiles down) of one cell, to the Gaussian's own cell of an atlas of images
+    (`render_batch`: no footprint reaches into a neighbouring image)."""
     t = ad()
-    tiles_x, tiles_y = (dr.opaque(t.Float, -(-n // tile)) for n in (width, height))
+    if cells is None:
+        lo_x = lo_y = 0.0
+        hi_x, hi_y = (dr.opaque(t.Float, -(-n // tile)) for n in (width, height))
+    else:
+        lo_x, lo_y, n_x, n_y = cells
+        hi_x, hi_y = lo_x + dr.opaque(t.Float, n_x), lo_y + dr.opaque(t.Float, n_y)
 
-    def clamp(x, hi):
-        return t.UInt32(dr.clip(x, 0.0, hi))
+    def clamp(x, lo, hi):
+        return t.UInt32(dr.clip(x, lo, hi))
 
-    x0 = clamp(dr.floor((u - radius) / tile), tiles_x)
-    x1 = clamp(dr.floor((u + radius + tile - 1) / tile), tiles_x)
-    y0 = clamp(dr.floor((v - radius) / tile), tiles_y)
-    y1 = clamp(dr.floor((v + radius + tile - 1) / tile), tiles_y)
+    x0 = clamp(dr.floor((u - radius) / tile), lo_x, hi_x)
+    x1 = clamp(dr.floor((u + radius + tile - 1) / tile), lo_x, hi_x)
+    y0 = clamp(dr.floor((v - radius) / tile), lo_y, hi_y)
+    y1 = clamp(dr.floor((v + radius + tile - 1) / tile), lo_y, hi_y)
     return x0, x1, y0, y1
 
 
@@ -220,12 +240,13 @@ def _first_greater(sorted_values, query, n: int):
     return lo
 
 
-def bin_gaussians(proj: Projected, width: int, height: int, cfg: RenderConfig, checks=None) -> Bins:
+def bin_gaussians(proj: Projected, width: int, height: int, cfg: RenderConfig, checks=None, cells=None) -> Bins:
     """Phase 2: variable-length, depth-ordered tile lists (prefix sum + stable argsort).
 
     checks: optional (arrays, fn): the arrays are evaluated in the same launch as the tile
     counts and fn(arrays) runs before anything is allocated from those counts (used to reject
-    non-finite inputs without an extra synchronisation)."""
+    non-finite inputs without an extra synchronisation). cells: optional per-Gaussian cell
+    bounds of an atlas (`tile_rects`)."""
     t = ad()
     ts = int(cfg.tile_size)
     tiles_x, tiles_y = -(-width // ts), -(-height // ts)
@@ -238,7 +259,9 @@ def bin_gaussians(proj: Projected, width: int, height: int, cfg: RenderConfig, c
     u = dr.gather(t.Float, dr.detach(proj.mean2d.x), order)
     v = dr.gather(t.Float, dr.detach(proj.mean2d.y), order)
     r = dr.gather(t.Float, proj.radius, order)
-    x0, x1, y0, y1 = tile_rects(u, v, r, width, height, ts)
+    if cells is not None:
+        cells = (dr.gather(t.Float, cells[0], order), dr.gather(t.Float, cells[1], order), cells[2], cells[3])
+    x0, x1, y0, y1 = tile_rects(u, v, r, width, height, ts, cells)
     w_rect = x1 - x0
     n = dr.select(r > 0, w_rect * (y1 - y0), 0)
     offsets = dr.cumsum(n)  # inclusive prefix sum, UInt32 [M]
@@ -632,3 +655,73 @@ def render(gaussians: Gaussians, camera: Camera, cfg: RenderConfig) -> RenderOut
         _Rasterize, proj.mean2d, proj.conic, proj.color, proj.opacity, proj.radius, bins, width, height, cfg, bg
     )
     return RenderOutput(rgb=t.TensorXf(rgb, (height, width, 3)), alpha=t.TensorXf(alpha, (height, width)))
+
+
+def render_batch(stacked: Gaussians, n_poses: int, cameras: list, cfg: RenderConfig):
+    """Forward-only renders of `n_poses` sets of M Gaussians, each seen from every camera, in one
+    program: TensorXf [n_poses * V, H, W, 3] (pose-major: image b is pose b // V, view b % V),
+    equal to `render(pose, camera, cfg).rgb` of each pair to float rounding.
+
+    stacked: the poses' Gaussians one after the other (n_poses * M entries); cameras: V views of
+    one image size. The B = n_poses * V images are laid out as the cells of one atlas image, each
+    cell a whole number of tiles: every Gaussian instance is projected by its own view and
+    shifted into its cell, binned only into its cell's tiles (`tile_rects`), and the atlas is
+    composited by the same phase 3 as one image; then each image is cut out. One projection, one
+    sort and one compositing loop instead of B of each: what a population of candidates costs in
+    the global search (sgdr.identify.global_search). No gradients (phase 3's adjoint would need
+    the cells too); memory grows with B x M, so callers split large batches.
+    """
+    t = ad()
+    n_poses, n_views = int(n_poses), len(cameras)
+    if n_poses < 1 or n_views < 1:
+        raise RenderError(f"render_batch: need at least one pose and one camera, got {n_poses} and {n_views}")
+    width, height = cameras[0].width, cameras[0].height
+    for cam in cameras[1:]:
+        if (cam.width, cam.height) != (width, height):
+            raise RenderError(
+                f"render_batch: every camera must have one image size; {cam.width}x{cam.height} differs from "
+                f"{width}x{height}"
+            )
+    total = _check_sizes(stacked)
+    if total % n_poses:
+        raise RenderError(f"render_batch: {total} Gaussians do not split into {n_poses} poses")
+    m = total // n_poses
+    ts = int(cfg.tile_size)
+    tiles_x, tiles_y = -(-width // ts), -(-height // ts)
+    cell_w, cell_h = tiles_x * ts, tiles_y * ts
+    n_images = n_poses * n_views
+    cols = int(np.ceil(np.sqrt(n_images)))
+    rows = -(-n_images // cols)
+    atlas_w, atlas_h = cols * cell_w, rows * cell_h
+    bg = [float(x) for x in cfg.background]
+    with dr.suspend_grad():
+        # instance i: image b = i // M (pose b // V, view b % V), Gaussian i % M of that pose
+        i = dr.arange(t.UInt32, n_images * m)
+        b = i // dr.opaque(t.UInt32, m)
+        pose, view = b // dr.opaque(t.UInt32, n_views), b % dr.opaque(t.UInt32, n_views)
+        src = pose * dr.opaque(t.UInt32, m) + i % dr.opaque(t.UInt32, m)
+        g = Gaussians(*(dr.gather(type(getattr(stacked, f)), dr.detach(getattr(stacked, f)), src) for f in _FIELDS))
+        table = np.stack([camera_constants(c, cfg) for c in cameras]).astype(np.float32)  # [V, 18]
+        constants = [dr.gather(t.Float, t.Float(np.ascontiguousarray(table[:, k])), view) for k in range(18)]
+        proj = project_with(g, constants, cfg)
+        col, row = t.Float(b % dr.opaque(t.UInt32, cols)), t.Float(b // dr.opaque(t.UInt32, cols))
+        proj.mean2d = t.Array2f(proj.mean2d.x + col * cell_w, proj.mean2d.y + row * cell_h)
+        checks = (_nonfinite_counts(stacked), _raise_nonfinite) if cfg.check_finite else None
+        bins = bin_gaussians(
+            proj, atlas_w, atlas_h, cfg, checks, cells=(col * tiles_x, row * tiles_y, tiles_x, tiles_y)
+        )
+        if bins.n_entries == 0:
+            img = np.broadcast_to(np.array(bg, np.float32), (n_images, height, width, 3))
+            return t.TensorXf(np.ascontiguousarray(img))
+        rgb, _ = dr.custom(
+            _Rasterize, proj.mean2d, proj.conic, proj.color, proj.opacity, proj.radius, bins, atlas_w, atlas_h, cfg, bg
+        )
+        # cut the images out of the atlas: pixel (b, y, x, channel)
+        k = dr.arange(t.UInt32, n_images * height * width * 3)
+        ch, k = k % 3, k // 3
+        x, k = k % dr.opaque(t.UInt32, width), k // dr.opaque(t.UInt32, width)
+        y, b = k % dr.opaque(t.UInt32, height), k // dr.opaque(t.UInt32, height)
+        ax = (b % dr.opaque(t.UInt32, cols)) * cell_w + x
+        ay = (b // dr.opaque(t.UInt32, cols)) * cell_h + y
+        out = dr.gather(t.Float, rgb, (ay * dr.opaque(t.UInt32, atlas_w) + ax) * 3 + ch)
+        return t.TensorXf(out, (n_images, height, width, 3))

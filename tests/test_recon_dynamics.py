@@ -373,6 +373,10 @@ def test_a_population_scored_in_batched_renders_equals_one_image_at_a_time(scene
         np.testing.assert_allclose(batched[:3], one[:3], rtol=1e-5, atol=1e-7)  # the truth: 0 vs 6e-9
         assert batched[3] == one[3] == UNSTABLE_LOSS
     assert one[1] < one[0]  # the truth fits better than a softer guess: the losses say something
+    # views of different image sizes cannot share an atlas: the scorer renders them one at a time
+    mixed = [*s["cams"][:-1], replace(s["cams"][-1], width=RES + 8)]
+    args_mixed = (*args[:6], mixed, *args[7:])
+    assert PopulationScorer(*args_mixed, image_scale=1, images_per_call=200).images_per_call == 1
 
 
 def test_the_search_space_skips_what_the_physics_lacks_and_caps_the_stiffness_at_the_stability_bound(scene):

@@ -11,7 +11,7 @@ depend on how many Gaussians a reconstruction happens to keep.
   *unsquared* Euclidean distance of the assigned pairs. Solved as the transport problem with
   uniform weights by POT's network simplex (`ot.emd`), whose optimum is an optimal assignment
   (Birkhoff): the same value as scipy's `linear_sum_assignment` (checked to 1e-9 relative in
-  tests/test_evaluate.py) in 0.4-0.5 s per frame instead of 0.4-2.3 s at small. Sets of unequal size
+  tests/test_metrics.py) in 0.4-0.5 s per frame instead of 0.4-2.3 s at small. Sets of unequal size
   (a partial assignment) and a network simplex that stops short of optimal use scipy's solver.
   `earth_movers_distances` scores many pairs (one per frame) on worker processes: each
   pair's assignment is the same exact, single-threaded computation, only run side by side.

@@ -288,13 +288,17 @@ class PopulationScorer:
         k = int(image_scale)
         if int(images_per_call) < 1:
             raise SearchConfigError(f"recon.search.images_per_call={images_per_call} must be a positive integer")
-        self.images_per_call = int(images_per_call)
         if k < 1:
             raise SearchConfigError(f"recon.search.image_scale={image_scale} must be a positive integer")
         t = ad()
         self.model, self.binding, self.base, self.ground = model, binding, base, ground
         self.gaussians = gaussians.detach() if hasattr(gaussians, "detach") else gaussians
         self.cameras = [downscaled(c, k) for c in cameras]
+        # one atlas needs one image size: views of different sizes are rendered one at a time
+        sizes = {(c.width, c.height) for c in self.cameras}
+        self.images_per_call = int(images_per_call) if len(sizes) == 1 else 1
+        if len(sizes) > 1 and int(images_per_call) > 1:
+            log.info("dynamics: global search: the views have %d image sizes; rendering one at a time", len(sizes))
         self.targets = [
             [t.TensorXf(np.ascontiguousarray(block_mean(to_numpy(img, np.float32), k))) for img in frame]
             for frame in targets
@@ -374,9 +378,8 @@ class PopulationScorer:
         with dr.suspend_grad():
             for start in range(0, len(poses), per_call):
                 chunk = poses[start : start + per_call]
-                means = np.concatenate([centres[k, f] for k, f in chunk])
-                g = Gaussians.from_numpy(means, *(np.tile(self.fields[n], (len(chunk),) + (1,) * (self.fields[n].ndim - 1))
-                                                 for n in ("log_scales", "rotations", "color_logits", "opacity_logits")))  # fmt: skip
+                tiled = {n: np.concatenate([v] * len(chunk)) for n, v in self.fields.items() if n != "means"}
+                g = Gaussians.from_numpy(np.concatenate([centres[k, f] for k, f in chunk]), **tiled)
                 pred = render_batch(g, len(chunk), self.cameras, self.render_cfg)
                 target = self.stacked_targets[[f for _, f in chunk]].reshape((-1,) + self.stacked_targets.shape[2:])
                 image_losses_all.append(

@@ -41,6 +41,7 @@ def _scene():
     from sgdr.anchors.sampling import sample_anchors
     from sgdr.cameras import Camera
     from sgdr.gaussians.model import Gaussians
+    from sgdr.identify.config import SearchConfig
     from sgdr.identify.global_search import PopulationScorer
     from sgdr.physics import Ground, PhysicsConfig, PhysParams, SimState, build_spring_model, rollout
     from sgdr.render.config import RenderConfig
@@ -73,7 +74,10 @@ def _scene():
     truth = PhysParams.init(model, cfg, v0=(0.2, 0.0, -1.0))
     states = rollout(model, truth, SimState.at_rest(model, (0.2, 0.0, -1.0)), ground, N_FIT, 1 / FPS, cfg)
     targets = [[to_tensor(render_rgb_numpy(posed(g, binding.apply(s.x)), c, rcfg)) for c in cams] for s in states]
-    scorer = PopulationScorer(model, binding, g, base, ground, targets, cams, 1 / FPS, N_SUB, cfg, rcfg, 0.05, 1)
+    per_call = int(SearchConfig().images_per_call)  # the batched path's own arrays are built at construction
+    scorer = PopulationScorer(
+        model, binding, g, base, ground, targets, cams, 1 / FPS, N_SUB, cfg, rcfg, 0.05, 1, per_call
+    )
     rng = np.random.default_rng(SEED + 1)
     values = {
         "log10_k": rng.uniform(2.6, 3.4, S),
@@ -86,11 +90,8 @@ def _scene():
 
 def run() -> dict:
     scorer, values = _scene()
-    from sgdr.identify.config import SearchConfig
-
     one = [{k: v[i : i + 1] for k, v in values.items()} for i in range(S)]
-
-    per_call = int(SearchConfig().images_per_call)
+    per_call = scorer.images_per_call
 
     def batched():
         scorer.images_per_call = per_call

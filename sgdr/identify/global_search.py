@@ -313,7 +313,9 @@ class PopulationScorer:
         self.base_level = float(np.mean(to_numpy(base.log10_k)))
         self.image_scale = k
         self.x_rest = np.asarray(array3_to_points(model.x_rest), float)
-        self.stacked_targets, self.fields = None, None  # built on the first batched call
+        if self.images_per_call > 1:  # what `_batched` reads: the targets [F, V, H, W, 3], the shared fields
+            self.stacked_targets = np.stack([[to_numpy(img, np.float32) for img in f] for f in self.targets[1:]])
+            self.fields = {f: np.asarray(v) for f, v in self.gaussians.to_numpy().items() if f != "means"}
 
     def samples(self, values: dict[str, np.ndarray]) -> dict:
         """Candidate values -> `batched_rollout` samples (a level is a shift of the base field)."""
@@ -366,11 +368,6 @@ class PopulationScorer:
         `image_losses`: about images_per_call images per program (whole frames of all views)."""
         t = ad()
         n_views, n_frames = len(self.cameras), len(self.targets) - 1
-        if self.stacked_targets is None:
-            self.stacked_targets = np.stack(
-                [[to_numpy(img, np.float32) for img in frame] for frame in self.targets[1:]]
-            )
-            self.fields = {f: np.asarray(v) for f, v in self.gaussians.to_numpy().items()}
         centres = batched_centres(self.binding, positions[:, 1 : n_frames + 1])  # [K, F, M, 3]
         poses = [(k, f) for k in range(centres.shape[0]) for f in range(n_frames)]
         per_call = max(1, self.images_per_call // n_views)
@@ -378,7 +375,7 @@ class PopulationScorer:
         with dr.suspend_grad():
             for start in range(0, len(poses), per_call):
                 chunk = poses[start : start + per_call]
-                tiled = {n: np.concatenate([v] * len(chunk)) for n, v in self.fields.items() if n != "means"}
+                tiled = {n: np.concatenate([v] * len(chunk)) for n, v in self.fields.items()}
                 g = Gaussians.from_numpy(np.concatenate([centres[k, f] for k, f in chunk]), **tiled)
                 pred = render_batch(g, len(chunk), self.cameras, self.render_cfg)
                 target = self.stacked_targets[[f for _, f in chunk]].reshape((-1,) + self.stacked_targets.shape[2:])

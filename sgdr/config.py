@@ -89,6 +89,7 @@ SECTION_CHECKS = {
     "posterior": posterior_config.CHECKS,
     "diagnose": diagnose_config.CHECKS,
     "posterior.priors": posterior_config.PRIOR_CHECKS,
+    "posterior.surrogate": posterior_config.SURROGATE_CHECKS,
     "realcap": realcap_config.CHECKS,
     "baseline": baseline_config.CHECKS,
     "baseline.pacnerf": baseline_config.PACNERF_CHECKS,

@@ -336,36 +336,40 @@ class PopulationScorer:
         )
 
     def __call__(self, values: dict[str, np.ndarray]) -> np.ndarray:
-        """[S] losses of the candidates {name: [S] values}."""
-        run = self.rollout(values, len(self.targets))
-        losses = np.full(run.positions.shape[0], UNSTABLE_LOSS)
-        stable = np.flatnonzero(run.stable)
-        if stable.size == 0:
-            return losses
-        scores = self._batched(run.positions[stable]) if self.images_per_call > 1 else self._one_at_a_time(run, stable)
-        for s, value in zip(stable, scores):
-            losses[s] = value if math.isfinite(value) else UNSTABLE_LOSS
-        return losses
+        """[S] losses of the candidates {name: [S] values}: the mean of `per_image`."""
+        per = self.per_image(values)
+        losses = per.reshape(per.shape[0], -1).mean(axis=1)
+        return np.where(np.isfinite(losses), losses, UNSTABLE_LOSS)
 
-    def _one_at_a_time(self, run, stable) -> list[float]:
-        """Each candidate's mean loss, one render and one loss per (frame, view)."""
+    def per_image(self, values: dict[str, np.ndarray]) -> np.ndarray:
+        """[S, n_fit - 1, n_views] image losses of the candidates, fit frames 1 .. n_fit - 1 (what
+        the posterior's rendered likelihood weighs per frame); NaN rows for unstable rollouts."""
+        run = self.rollout(values, len(self.targets))
+        out = np.full((run.positions.shape[0], len(self.targets) - 1, len(self.cameras)), np.nan)
+        stable = np.flatnonzero(run.stable)
+        if stable.size:
+            out[stable] = (
+                self._batched(run.positions[stable]) if self.images_per_call > 1 else self._one_at_a_time(run, stable)
+            )
+        return out
+
+    def _one_at_a_time(self, run, stable) -> np.ndarray:
+        """[K, F, V] losses, one render and one loss per (frame, view)."""
         t = ad()
-        out = []
+        out = np.zeros((len(stable), len(self.targets) - 1, len(self.cameras)))
         with dr.suspend_grad():
-            for s in stable:
-                total = t.Float(0.0)
+            for i, s in enumerate(stable):
                 for f in range(1, len(self.targets)):
                     x = run.positions[s, f].astype(np.float32)
                     g = posed(self.gaussians, self.binding.apply(t.Array3f(*x.T)))
                     for v, cam in enumerate(self.cameras):
-                        total += image_loss(render(g, cam, self.render_cfg).rgb, self.targets[f][v], self.lam)
-                    dr.eval(total)
-                out.append(float(to_numpy(total)[0]) / ((len(self.targets) - 1) * len(self.cameras)))
+                        loss = image_loss(render(g, cam, self.render_cfg).rgb, self.targets[f][v], self.lam)
+                        out[i, f - 1, v] = float(to_numpy(loss)[0])
         return out
 
-    def _batched(self, positions: np.ndarray) -> list[float]:
-        """The same means as `_one_at_a_time` (to float rounding) from `render_batch` and
-        `image_losses`: about images_per_call images per program (whole frames of all views)."""
+    def _batched(self, positions: np.ndarray) -> np.ndarray:
+        """The same [K, F, V] losses as `_one_at_a_time` (to float rounding) from `render_batch`
+        and `image_losses`: about images_per_call images per program (whole frames of all views)."""
         t = ad()
         n_views, n_frames = len(self.cameras), len(self.targets) - 1
         centres = batched_centres(self.binding, positions[:, 1 : n_frames + 1])  # [K, F, M, 3]
@@ -382,8 +386,7 @@ class PopulationScorer:
                 image_losses_all.append(
                     to_numpy(image_losses(pred, t.TensorXf(np.ascontiguousarray(target)), self.lam))
                 )
-        per_image = np.concatenate(image_losses_all).reshape(centres.shape[0], n_frames * n_views)
-        return [float(v) for v in per_image.astype(np.float64).mean(axis=1)]
+        return np.concatenate(image_losses_all).astype(np.float64).reshape(centres.shape[0], n_frames, n_views)
 
 
 def landscape(scorer: PopulationScorer, result: GlobalSearchResult, search_cfg, n_frames: int, n_fit: int) -> Landscape:

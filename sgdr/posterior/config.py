@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from sgdr.checks import Check, any_text, at_least, between, choice, list_of, positive, vector
+from sgdr.posterior.surrogate import SurrogateConfig
 
 # the sampled parameters a posterior may include (sgdr.posterior.rollouts.SAMPLE_KEYS without v0)
 PARAMETERS = ("log10_k_shift", "kappa", "friction", "restitution", "zeta0")
@@ -35,7 +36,15 @@ class PosteriorConfig:
     parameters: list = field(default_factory=lambda: ["log10_k_shift", "kappa", "friction", "restitution"])
     priors: PriorConfig = field(default_factory=PriorConfig)
     rollout: str = "batched"  # how the walkers' samples are simulated: "batched" (one program) | "loop" (reference)
-    # likelihood (sgdr.posterior.likelihood)
+    # likelihood (sgdr.posterior.likelihood): "rendered" (the identification's image loss of every view-frame,
+    # RenderedLikelihood) | "silhouette" (projected centres against the silhouettes, SilhouetteLikelihood)
+    likelihood: str = "rendered"
+    image_scale: int = 0  # rendered: images downscaled by this (0 = the run's recon.search.image_scale, else 1)
+    loss_floor: float = 1.0e-4  # rendered: the smallest per-image noise scale
+    # how the posterior is sampled: "surrogate" (a GP of log L refined at the chains' draws and checked
+    # there, sgdr.posterior.surrogate) | "emcee" (the ensembles on the likelihood itself)
+    sampler: str = "surrogate"
+    surrogate: SurrogateConfig = field(default_factory=SurrogateConfig)
     n_views: int = 0  # views used, evenly spaced (0 = all)
     frame_stride: int = 1  # every frame_stride-th fit frame (frame 0, the rest state, is never used)
     n_points: int = 256  # bound Gaussian centres projected per sample (seeded subset; 0 = all)
@@ -64,6 +73,15 @@ class PosteriorConfig:
 
 
 PRIOR_CHECKS = {name: vector(2) for name in PARAMETERS}
+SURROGATE_CHECKS = {
+    "n_initial": at_least(0),
+    "n_sobol": at_least(0),
+    "n_validate": at_least(8, "PSIS needs a few draws to fit its tail"),
+    "max_rounds": at_least(1),
+    "chain_steps": at_least(100),
+    "clip": positive(),
+    "khat_max": between(0.0, 1.0, lo_open=True),
+}
 
 CHECKS: dict[str, Check] = {
     "run": any_text("a finished run folder"),
@@ -71,6 +89,10 @@ CHECKS: dict[str, Check] = {
     "out_dir": any_text("the output folder; empty: <run>/posterior"),
     "parameters": list_of(choice(PARAMETERS), min_len=1),
     "rollout": choice("sgdr.posterior.rollouts:ROLLOUTS"),
+    "likelihood": choice(("rendered", "silhouette")),
+    "image_scale": at_least(0, "0: the run's recon.search.image_scale"),
+    "loss_floor": positive(),
+    "sampler": choice(("surrogate", "emcee")),
     "n_views": at_least(0, "0: all views"),
     "frame_stride": at_least(1),
     "n_points": at_least(0, "0: every centre"),

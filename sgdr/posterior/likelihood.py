@@ -74,3 +74,105 @@ class SilhouetteLikelihood:
         total = d.reshape(d.shape[0], -1).sum(axis=1)
         ll = -total / (2.0 * self.sigma2 * self.temperature)
         return np.where(np.isfinite(ll), ll, -np.inf)
+
+
+class RenderedImages:
+    """θ [S, D] -> image losses [S, F, V]: each sample's open-loop rollout of the fit frames from
+    rest, rendered on every view and compared with the observed images by the identification's
+    own loss ((1-λ) L1 + λ D-SSIM, `recon.lambda_dssim`), through the global search's batched
+    `PopulationScorer` (one S x N_A rollout, then `render_batch` over whole frames of all views).
+    So the likelihood sees what the identification saw: the rendered images at
+    `image_scale` (k x k block means of the targets, intrinsics / k), at the asset's n_t.
+
+    θ's log10_k_shift moves the asset's whole log10 k field (the scorer's level minus the
+    field's mean); the other parameters replace the asset's values."""
+
+    def __init__(self, asset, seq, problem, render_cfg, lam: float, image_scale: int, images_per_call: int):
+        from sgdr.asset.predict import physical_params
+        from sgdr.identify.global_search import PopulationScorer
+        from sgdr.observe.targets import frame_targets
+        from sgdr.physics import Ground
+
+        n_fit = min(int(asset.n_fit), int(seq.n_fit))
+        if n_fit < 2:
+            raise ValueError(
+                f"{seq.root}: {n_fit} fit frame(s); the rendered likelihood needs fit frames after frame 0"
+            )
+        model, binding = asset.build()
+        base = physical_params(model, asset.physics, asset.values)
+        ground = Ground(asset.ground_point, asset.ground_normal)
+        targets = [frame_targets(seq, f) for f in range(n_fit)]
+        self.problem = problem
+        self.scorer = PopulationScorer(model, binding, asset.gaussians, base, ground, targets, seq.cameras,
+                                       1.0 / asset.fps, int(asset.n_substeps), asset.physics, render_cfg, float(lam),
+                                       int(image_scale), int(images_per_call))  # fmt: skip
+        self.frames = np.arange(1, n_fit)
+        self.n_views = len(seq.cameras)
+        self.calls = 0  # rollouts rendered (the cost)
+        self.unstable = 0
+
+    def values(self, thetas: np.ndarray) -> dict:
+        """The scorer's candidate values of θ [S, D]."""
+        out = {}
+        for j, name in enumerate(self.problem.names):
+            if name == "log10_k_shift":
+                out["log10_k"] = self.scorer.base_level + np.asarray(thetas[:, j], float)
+            else:
+                out[name] = np.asarray(thetas[:, j], float)
+        return out
+
+    def __call__(self, thetas: np.ndarray, chunk: int = 32) -> np.ndarray:
+        """[S, F, V] losses, NaN rows for unstable rollouts; `chunk` samples per batched call."""
+        thetas = np.atleast_2d(np.asarray(thetas, float))
+        parts = [self.scorer.per_image(self.values(thetas[i : i + chunk])) for i in range(0, len(thetas), chunk)]
+        out = np.concatenate(parts) if parts else np.zeros((0, len(self.frames), self.n_views))
+        self.calls += len(thetas)
+        self.unstable += int(np.sum(~np.isfinite(out.reshape(len(out), -1)).any(axis=1)))
+        return out
+
+
+@dataclass
+class RenderedLikelihood:
+    """log L(θ) = -Σ_f Σ_v ℓ_fv(θ) / (2 s_f T) from the image losses ℓ [S, F, V] (`RenderedImages`).
+
+    One view-frame is one observation (the tempering: the pixels of one image are far from
+    independent, so counting them would sharpen the posterior by the pixel count). Its scale
+    s_f = noise + discrepancy_f splits the identified asset's (the MAP's) own misfit m_f (mean
+    over the views of frame f) into
+      noise          min_f m_f, floored at `floor`: what no physical parameter removes (the
+                     appearance fit and the image noise; the frames before the object has moved
+                     much show it alone);
+      discrepancy_f  m_f - noise made non-decreasing in f (isotonic regression): the model's
+                     misfit of the motion, allowed to grow with the horizon where the data say it
+                     does and no faster.
+    So the MAP scores about -n_vf / (2T) and a sample whose images err by a fraction ε more than
+    the MAP's on every frame loses about n_vf ε / 2 nats; later frames, where the model misses
+    more, weigh less. T = `posterior.temperature`."""
+
+    noise: float
+    discrepancy: np.ndarray  # [F]
+    temperature: float = 1.0
+
+    @staticmethod
+    def at_map(map_losses: np.ndarray, floor: float, temperature: float) -> RenderedLikelihood:
+        """From the MAP's losses [F, V] (or [1, F, V])."""
+        from sklearn.isotonic import IsotonicRegression
+
+        m = np.asarray(map_losses, float).reshape(-1, np.shape(map_losses)[-1]).mean(axis=1)  # [F]
+        if not np.all(np.isfinite(m)):
+            raise ValueError("posterior: the identified parameters' rollout gives non-finite image losses")
+        noise = max(float(m.min()), float(floor))
+        excess = np.maximum(m - noise, 0.0)
+        f = np.arange(m.size, dtype=float)
+        disc = IsotonicRegression(increasing=True).fit(f, excess).predict(f) if m.size > 1 else excess
+        return RenderedLikelihood(noise, np.maximum(disc, 0.0), float(temperature))
+
+    @property
+    def scale(self) -> np.ndarray:
+        return self.noise + self.discrepancy
+
+    def log_likelihood(self, losses: np.ndarray) -> np.ndarray:
+        """[S] from ℓ [S, F, V]; -inf where any loss is not finite (an unstable rollout)."""
+        x = np.asarray(losses, float)
+        ll = -np.sum(x / (2.0 * self.scale[None, :, None] * self.temperature), axis=(1, 2))
+        return np.where(np.isfinite(ll), ll, -np.inf)

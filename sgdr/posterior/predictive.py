@@ -251,19 +251,8 @@ def section(record: dict, out_dir):
     truth = record.get("truth") or {}
     status = "good" if d["converged"] else "poor"
     body = [f'<p id="posterior-verdict" class="{status}"><b>{esc(record["headline"])}</b></p>']
-    body.append(
-        paragraph(
-            f"Observed: {record['sequence']}{' (a twin with a known truth)' if truth else ''}. Likelihood: the "
-            f"silhouettes of {record['likelihood']['n_views']} views x {record['likelihood']['n_frames']} fit frames "
-            f"(frame 0 and the future left out), noise scale σ = {record['likelihood']['sigma_px']:.3g} px from the "
-            f"identified parameters' residual, one observation per view and frame (the tempering), extra temperature "
-            f"{record['likelihood']['temperature']:g}. {d['n_ensembles']} independent ensembles of {d['n_walkers']} "
-            f"walkers x {d['n_steps']} steps started around the run's identified parameters"
-            f"{_sampler_words(record.get('sampler'))}; burn-in {d['burn_in']} "
-            f"steps, thinning {d['thin']}, {d['n_kept']} samples kept; {record['cost']['rollouts']} rollouts in "
-            f"{record['cost']['seconds']:.0f} s."
-        )
-    )
+    body.append(paragraph(f"Observed: {record['sequence']}{' (a twin with a known truth)' if truth else ''}. "
+                          + _likelihood_words(record["likelihood"]) + " " + _sampling_words(record)))  # fmt: skip
     rows = []
     for n in names:
         lo, hi = d["q05"][n], d["q95"][n]
@@ -352,6 +341,55 @@ def section(record: dict, out_dir):
         )
     )
     return Section("Posterior", "".join(body))
+
+
+def _likelihood_words(lk: dict) -> str:
+    """The report's sentence on what the likelihood compares."""
+    if lk.get("kind") == "rendered":
+        disc = lk["discrepancy_per_frame"]
+        prof = lk.get("profile_log10_k_shift") or {}
+        words = (
+            f"Likelihood: the rendered images of the open-loop rollout on {lk['n_views']} views x {lk['n_frames']} fit "
+            f"frames (frame 0 and the future left out) at 1/{lk['image_scale']} scale, the identification's own image "
+            f"loss, one observation per view and frame (the tempering), each frame's scale the identified asset's "
+            f"misfit: noise {lk['noise']:.3g} plus a discrepancy growing over the fit frames from {disc[0]:.3g} to "
+            f"{disc[-1]:.3g}; extra temperature {lk['temperature']:g}."
+        )
+        if prof:
+            words += (
+                " log L along a global stiffness shift (decades: nats, others at the MAP): "
+                + ", ".join(f"{k}: {v:.1f}" for k, v in prof.items())
+                + "."
+            )
+        return words
+    return (
+        f"Likelihood: the silhouettes of {lk['n_views']} views x {lk['n_frames']} fit frames (frame 0 and the future "
+        f"left out), noise scale σ = {lk['sigma_px']:.3g} px from the identified parameters' residual, one "
+        f"observation per view and frame (the tempering), extra temperature {lk['temperature']:g}."
+    )
+
+
+def _sampling_words(record: dict) -> str:
+    """The report's sentence on how the posterior was sampled and what it cost."""
+    d = record["diagnostics"]
+    sampler = record.get("sampler") or {}
+    words = (
+        f"{d['n_ensembles']} independent ensembles of {d['n_walkers']} walkers x {d['n_steps']} steps started around "
+        f"the run's identified parameters{_sampler_words(sampler)}"
+    )
+    sur = sampler.get("surrogate")
+    if sur:
+        last = sur["rounds"][-1]
+        words += (
+            f", on a Gaussian-process surrogate of log L fitted to {sur['n_true_evaluations']} rendered evaluations "
+            f"(the global stage's candidates, Sobol points and each round's draws), {len(sur['rounds'])} round(s); "
+            f"at the last round's draws the surrogate's error was {last['rmse_nats']:.2f} nats RMS and PSIS k-hat "
+            f"{last['khat']:.2f} ({'stands for' if sur['validated'] else 'does NOT stand for'} the likelihood)"
+        )
+    return (
+        words + f"; burn-in {d['burn_in']} steps, thinning {d['thin']}, {d['n_kept']} samples kept; "
+        f"{record['cost']['rollouts']} rendered or simulated rollouts in {record['cost']['seconds']:.0f} s."
+    )
 
 
 def _sampler_words(sampler: dict | None) -> str:

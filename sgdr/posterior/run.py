@@ -29,9 +29,10 @@ from sgdr.evaluate.score import strict_json
 from sgdr.observe.silhouette import CentreMap, discrepancy, observation
 from sgdr.physics import Ground
 from sgdr.posterior import predictive as pp
-from sgdr.posterior.likelihood import SilhouetteLikelihood
+from sgdr.posterior.likelihood import RenderedImages, RenderedLikelihood, SilhouetteLikelihood
 from sgdr.posterior.rollouts import ROLLOUTS
 from sgdr.posterior.sample import LogProbability, Problem, diagnose, headline, kept_samples, run_ensembles
+from sgdr.posterior.surrogate import design, sample_with_surrogate
 from sgdr.report.html import add_section
 from sgdr.run_folder import run_asset_and_sequence
 
@@ -60,35 +61,33 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     n_all = max(asset.n_frames, seq.n_frames)
     rollout_all = lambda s: rollout(*common, s, ground, n_all, 1.0 / asset.fps, asset.n_substeps, asset.physics)  # noqa: E731
 
-    n_views = len(seq.cameras) if pc.n_views == 0 else min(int(pc.n_views), len(seq.cameras))
-    views = sorted({int(round(i * len(seq.cameras) / n_views)) % len(seq.cameras) for i in range(n_views)})
-    obs = observation(seq, views, fit_frames, pc.n_mask_points, seed=cfg.seed)
-    centre_map = CentreMap(asset, pc.n_points, seed=cfg.seed)
     problem = Problem.from_config(asset, pc)
-    pos, stable = rollout_fit(problem.samples(problem.map_theta[None]))
-    if not stable[0]:
-        raise RuntimeError(f"{asset_dir}: the identified parameters' rollout is unstable")
-    d_map = discrepancy(obs, centre_map(pos[:, obs.frames]))[0]
-    likelihood = SilhouetteLikelihood.at_map(obs, d_map, pc.sigma_floor_px, pc.temperature)
-    log_prob = LogProbability(problem, rollout_fit, centre_map, likelihood)
-    log.info(
-        "posterior: %d views x %d frames, sigma %.3g px, %s, %d x %d walkers x %d steps",
-        len(views), len(fit_frames), np.sqrt(likelihood.sigma2), problem.names, pc.n_ensembles, pc.n_walkers, pc.n_steps,
-    )  # fmt: skip
-    chains, log_probs, acceptance = run_ensembles(
-        log_prob,
-        problem,
-        pc.n_walkers,
-        pc.n_steps,
-        pc.n_ensembles,
-        pc.init_ball,
-        seed=cfg.seed,
-        progress=progress,
-        move=pc.moves,
-        space=pc.space,
-    )
+    if pc.likelihood == "rendered":
+        log_prob, _, like_record = _rendered(cfg, run_dir, asset, seq, problem)
+    else:
+        log_prob, _, like_record = _silhouette(cfg, asset, seq, problem, rollout_fit, asset_dir)
+    run_chains = lambda lp, steps: run_ensembles(lp, problem, pc.n_walkers, steps, pc.n_ensembles, pc.init_ball,  # noqa: E731
+                                                 seed=cfg.seed, progress=progress, move=pc.moves, space=pc.space)  # fmt: skip
+    surrogate = None
+    if pc.sampler == "surrogate":
+        start = design(problem, search_candidates(run_dir, asset, problem), pc.surrogate.n_initial,
+                       pc.surrogate.n_sobol, cfg.seed)  # fmt: skip
+        chains, log_probs, acceptance, surrogate = sample_with_surrogate(
+            log_prob, problem, start, pc.surrogate, lambda lp: run_chains(lp, pc.surrogate.chain_steps), cfg.seed,
+            progress,
+        )  # fmt: skip
+    else:
+        chains, log_probs, acceptance = run_chains(log_prob, pc.n_steps)
     sample_seconds = time.time() - t0
     diag = diagnose(chains, problem.names, pc, acceptance)
+    if surrogate is not None and not surrogate.validated:
+        last = surrogate.rounds[-1]
+        diag["failed"].append(
+            f"the surrogate did not stand for the rendered likelihood after {len(surrogate.rounds)} round(s): "
+            f"PSIS k-hat {last['khat']:.2f} > {pc.surrogate.khat_max:g} at its last draws "
+            f"(posterior.surrogate.max_rounds, posterior.surrogate.n_validate)"
+        )
+        diag["converged"] = False
     kept = kept_samples(chains, diag)
     median = np.array([diag["median"][n] for n in problem.names])
     pred, pred_centres, pred_stable = pp.predictive(
@@ -118,22 +117,17 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
         "names": problem.names,
         "map": {n: float(t) for n, t in zip(problem.names, problem.map_theta)},
         "priors": {n: [float(lo), float(hi)] for n, lo, hi in zip(problem.names, problem.low, problem.high)},
-        "sampler": {"moves": pc.moves, "space": pc.space, "rollout": pc.rollout},
+        "sampler": {
+            "kind": pc.sampler,
+            "moves": pc.moves,
+            "space": pc.space,
+            "rollout": pc.rollout,
+            "surrogate": surrogate.to_json() if surrogate is not None else None,
+        },
         "truth": truth or None,
         "notes": notes,
         "truth_inside_5_95": {n: bool(diag["q05"][n] <= t <= diag["q95"][n]) for n, t in truth.items()} or None,
-        "likelihood": {
-            "kind": "silhouette chamfer",
-            "views": [seq.cameras[v].name for v in views],
-            "n_views": len(views),
-            "frames": fit_frames.tolist(),
-            "n_frames": len(fit_frames),
-            "n_points": int(centre_map.rest.shape[0]),
-            "n_mask_points": int(pc.n_mask_points),
-            "sigma_px": float(np.sqrt(likelihood.sigma2)),
-            "map_discrepancy_px2": d_map.tolist(),
-            "temperature": float(pc.temperature),
-        },
+        "likelihood": like_record,
         "criteria": {
             k: float(getattr(pc, k)) for k in ("tau_factor", "rhat_max", "ess_min", "acceptance_min", "acceptance_max")
         },
@@ -151,6 +145,127 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     if cfg.tracking.enabled:
         record["mlflow_run_id"] = log_to_mlflow(run_dir, out, record)
     return record
+
+
+PROFILE_SHIFTS = (-0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5)
+"""log10 k shifts (decades, the other parameters at the MAP) at which the record profiles the
+rendered log-likelihood: how sharply the images pin the stiffness level down."""
+
+
+class RenderedLogProbability:
+    """log p(θ) [S] for θ [S, D]: the uniform prior and the rendered likelihood (-inf outside)."""
+
+    def __init__(self, problem, images: RenderedImages, likelihood: RenderedLikelihood):
+        self.problem, self.images, self.likelihood = problem, images, likelihood
+
+    @property
+    def calls(self) -> int:
+        return self.images.calls
+
+    @property
+    def unstable(self) -> int:
+        return self.images.unstable
+
+    def __call__(self, thetas: np.ndarray) -> np.ndarray:
+        thetas = np.atleast_2d(np.asarray(thetas, float))
+        out = np.full(thetas.shape[0], -np.inf)
+        ok = self.problem.inside(thetas)
+        if ok.any():
+            out[ok] = self.likelihood.log_likelihood(self.images(thetas[ok]))
+        return out
+
+
+def _rendered(cfg, run_dir: Path, asset, seq, problem):
+    """(log_prob, likelihood, the record's likelihood section) of the rendered likelihood: the
+    identification's image loss at posterior.image_scale (0: the run's own search scale)."""
+    pc = cfg.posterior
+    scale = int(pc.image_scale) or int(((_dynamics(run_dir).get("search") or {}).get("image_scale")) or 1)
+    images = RenderedImages(asset, seq, problem, cfg.render, cfg.recon.lambda_dssim, scale,
+                            cfg.recon.search.images_per_call)  # fmt: skip
+    map_losses = images(problem.map_theta[None])
+    if not np.all(np.isfinite(map_losses)):
+        raise RuntimeError(f"{asset.root}: the identified parameters' rollout is unstable")
+    likelihood = RenderedLikelihood.at_map(map_losses[0], pc.loss_floor, pc.temperature)
+    log_prob = RenderedLogProbability(problem, images, likelihood)
+    profile = {}
+    if "log10_k_shift" in problem.names:
+        j = problem.names.index("log10_k_shift")
+        thetas = np.repeat(problem.map_theta[None], len(PROFILE_SHIFTS), axis=0)
+        thetas[:, j] = PROFILE_SHIFTS
+        profile = {f"{d:+g}": float(v) for d, v in zip(PROFILE_SHIFTS, log_prob(thetas))}
+    log.info("posterior: rendered likelihood, %d views x %d frames at 1/%d scale, noise %.4g, discrepancy %.4g -> %.4g",
+             images.n_views, len(images.frames), scale, likelihood.noise, likelihood.discrepancy[0],
+             likelihood.discrepancy[-1])  # fmt: skip
+    record = {
+        "kind": "rendered",
+        "views": [c.name for c in seq.cameras],
+        "n_views": images.n_views,
+        "frames": images.frames.tolist(),
+        "n_frames": len(images.frames),
+        "image_scale": scale,
+        "lambda_dssim": float(cfg.recon.lambda_dssim),
+        "noise": likelihood.noise,
+        "discrepancy_per_frame": likelihood.discrepancy.tolist(),
+        "map_loss_per_frame": map_losses[0].mean(axis=1).tolist(),
+        "temperature": float(pc.temperature),
+        "profile_log10_k_shift": profile or None,
+    }
+    return log_prob, likelihood, record
+
+
+def _silhouette(cfg, asset, seq, problem, rollout_fit, asset_dir: Path):
+    """(log_prob, likelihood, the record's likelihood section) of the silhouette likelihood."""
+    pc = cfg.posterior
+    fit_frames = np.arange(1, asset.n_fit, int(pc.frame_stride))
+    n_views = len(seq.cameras) if pc.n_views == 0 else min(int(pc.n_views), len(seq.cameras))
+    views = sorted({int(round(i * len(seq.cameras) / n_views)) % len(seq.cameras) for i in range(n_views)})
+    obs = observation(seq, views, fit_frames, pc.n_mask_points, seed=cfg.seed)
+    centre_map = CentreMap(asset, pc.n_points, seed=cfg.seed)
+    pos, stable = rollout_fit(problem.samples(problem.map_theta[None]))
+    if not stable[0]:
+        raise RuntimeError(f"{asset_dir}: the identified parameters' rollout is unstable")
+    d_map = discrepancy(obs, centre_map(pos[:, obs.frames]))[0]
+    likelihood = SilhouetteLikelihood.at_map(obs, d_map, pc.sigma_floor_px, pc.temperature)
+    log.info("posterior: silhouette likelihood, %d views x %d frames, sigma %.3g px", len(views), len(fit_frames),
+             np.sqrt(likelihood.sigma2))  # fmt: skip
+    record = {
+        "kind": "silhouette chamfer",
+        "views": [seq.cameras[v].name for v in views],
+        "n_views": len(views),
+        "frames": fit_frames.tolist(),
+        "n_frames": len(fit_frames),
+        "n_points": int(centre_map.rest.shape[0]),
+        "n_mask_points": int(pc.n_mask_points),
+        "sigma_px": float(np.sqrt(likelihood.sigma2)),
+        "map_discrepancy_px2": d_map.tolist(),
+        "temperature": float(pc.temperature),
+    }
+    return LogProbability(problem, rollout_fit, centre_map, likelihood), likelihood, record
+
+
+def _dynamics(run_dir: Path) -> dict:
+    path = run_dir / "dynamics" / "dynamics.json"
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
+def search_candidates(run_dir: Path, asset, problem) -> np.ndarray:
+    """[N, D] the run's global-stage candidates (dynamics.json `search`, best first) as θ: the
+    level as a shift of the asset's field mean, parameters the search did not vary at the MAP;
+    empty when the run did not search."""
+    search = _dynamics(run_dir).get("search") or {}
+    if not search.get("candidates"):
+        return np.zeros((0, len(problem.names)))
+    names = list(search["names"])
+    cand = np.asarray(search["candidates"], float)
+    loss = np.asarray(search["losses"], float)
+    cand = cand[np.argsort(loss, kind="stable")]
+    level = float(np.mean(asset.values["log10_k"]))
+    out = np.repeat(problem.map_theta[None], len(cand), axis=0)
+    for j, name in enumerate(problem.names):
+        key = "log10_k" if name == "log10_k_shift" else name
+        if key in names:
+            out[:, j] = cand[:, names.index(key)] - (level if key == "log10_k" else 0.0)
+    return out
 
 
 def twin_truth(seq, asset_dir: Path, problem) -> dict:

@@ -1,0 +1,202 @@
+"""Sampling a posterior whose every evaluation is a rendered rollout: a Gaussian-process surrogate,
+refined where the chains go, and checked against the true likelihood at the chains' own draws.
+
+Why. One rendered log-likelihood at the small preset costs ~0.7 s (a rollout of the fit frames and
+190 renders); converged ensembles need ~10^5 evaluations, days on 2 cores. The landscape is
+smooth enough between its basins for a surrogate (four parameters, one number each), so:
+
+  1. design   the identification's global stage already scored a population (the run's
+              dynamics.json `search`): its candidates inside the prior, best first (at most
+              `n_initial`), plus `n_sobol` scrambled Sobol points over the prior box and the MAP,
+              are evaluated with the true likelihood (batched);
+  2. fit      a Gaussian process (scikit-learn; an anisotropic squared-exponential kernel plus a
+              white-noise term, hyper-parameters by maximum marginal likelihood) to log L in the
+              unit box u = (θ - low) / (high - low), with values more than `clip` nats below the
+              best clipped there (the GP models the region that matters; its mean reverts to that
+              floor away from the data, so unexplored corners are not mistaken for mass);
+  3. sample   emcee ensembles (`sgdr.posterior.sample.run_ensembles`, the same moves, space and
+              convergence criteria as the direct sampler) on the surrogate's mean, `chain_steps`
+              long: cheap, so the chains are many τ long;
+  4. check    `n_validate` draws of those chains are evaluated with the true likelihood; the
+              log ratio true - surrogate is the importance weight of each draw, and its Pareto
+              k̂ (ArviZ's PSIS) says whether the surrogate posterior stands for the true one
+              (k̂ <= `khat_max`, 0.7 by Vehtari et al.'s rule). If it does not, the draws join the
+              design and 2-4 repeat, at most `max_rounds` times.
+
+The chains of the round that passed the check are the posterior; the run is 'converged' only when
+they meet the usual criteria AND the check passed (`failed` says which did not). Deterministic
+for a given seed (the GP's optimiser restarts and the draws are seeded).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class SurrogateConfig:
+    """posterior.surrogate.* (conf/posterior/default.yaml; sizes in the presets)."""
+
+    n_initial: int = 96  # the global stage's best candidates inside the prior, evaluated first
+    n_sobol: int = 32  # scrambled Sobol points over the prior box added to the design
+    n_validate: int = 48  # draws of each round's chains evaluated with the true likelihood
+    max_rounds: int = 6  # surrogate refits at most
+    chain_steps: int = 3000  # steps of the ensembles on the surrogate (cheap)
+    clip: float = 60.0  # nats below the best at which log L is clipped for the GP
+    khat_max: float = 0.7  # PSIS Pareto k̂ at or below which the surrogate stands for the likelihood
+
+
+@dataclass
+class SurrogateRecord:
+    """What the surrogate did: every true evaluation and each round's check."""
+
+    thetas: np.ndarray  # [N, D] every θ the true likelihood evaluated, in order
+    log_like: np.ndarray  # [N]
+    rounds: list = field(default_factory=list)  # per round: n_design, khat, rmse, max_abs, seconds
+    validated: bool = False
+
+    def to_json(self) -> dict:
+        best = int(np.argmax(self.log_like)) if self.log_like.size else -1
+        return {
+            "n_true_evaluations": int(self.log_like.size),
+            "rounds": self.rounds,
+            "validated": bool(self.validated),
+            "best_theta": self.thetas[best].tolist() if best >= 0 else None,
+            "best_log_like": float(self.log_like[best]) if best >= 0 else None,
+        }
+
+
+class GPSurrogate:
+    """log L(θ) ≈ floor + clip · GP(u) (module docstring, step 2)."""
+
+    def __init__(self, low, high, clip: float, seed: int = 0):
+        self.low, self.high = np.asarray(low, float), np.asarray(high, float)
+        self.clip, self.seed = float(clip), int(seed)
+        self.gp = None
+        self.floor = 0.0
+
+    def unit(self, thetas: np.ndarray) -> np.ndarray:
+        return (np.atleast_2d(thetas) - self.low) / (self.high - self.low)
+
+    def fit(self, thetas: np.ndarray, log_like: np.ndarray) -> GPSurrogate:
+        from sklearn.gaussian_process import GaussianProcessRegressor
+        from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+
+        ok = np.isfinite(log_like)
+        if ok.sum() < 2:
+            raise ValueError("posterior surrogate: fewer than 2 stable evaluations to fit")
+        x, y = self.unit(thetas[ok]), np.asarray(log_like, float)[ok]
+        self.floor = float(y.max()) - self.clip
+        target = (np.maximum(y, self.floor) - self.floor) / self.clip  # [0, 1]
+        d = x.shape[1]
+        kernel = ConstantKernel(0.1, (1e-4, 10.0)) * RBF(np.full(d, 0.2), (1e-3, 20.0)) + WhiteKernel(
+            1e-5, (1e-10, 1e-2)
+        )
+        self.gp = GaussianProcessRegressor(kernel, normalize_y=False, n_restarts_optimizer=3, random_state=self.seed)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # hyper-parameters at a bound: the fit still stands
+            self.gp.fit(x, target)
+        return self
+
+    def __call__(self, thetas: np.ndarray) -> np.ndarray:
+        """[S] surrogate log L; -inf outside the box."""
+        thetas = np.atleast_2d(np.asarray(thetas, float))
+        out = np.full(thetas.shape[0], -np.inf)
+        inside = np.all((thetas >= self.low) & (thetas <= self.high), axis=1)
+        if inside.any():
+            out[inside] = self.floor + self.clip * self.gp.predict(self.unit(thetas[inside]))
+        return out
+
+
+def design(problem, candidates: np.ndarray, n_initial: int, n_sobol: int, seed: int) -> np.ndarray:
+    """[N, D] the first design: the MAP, the given candidates inside the prior (best first, at most
+    n_initial) and n_sobol scrambled Sobol points over the prior box."""
+    from scipy.stats import qmc
+
+    parts = [problem.map_theta[None]]
+    c = np.asarray(candidates, float).reshape(-1, len(problem.names))
+    if c.size and n_initial > 0:
+        parts.append(c[problem.inside(c)][: int(n_initial)])
+    if n_sobol > 0:
+        u = qmc.Sobol(len(problem.names), scramble=True, seed=int(seed)).random(int(n_sobol))
+        parts.append(problem.low + u * (problem.high - problem.low))
+    return np.concatenate(parts)
+
+
+def psis_khat(log_weights: np.ndarray) -> float:
+    """ArviZ's Pareto k̂ of importance log-weights (inf when fewer than 2 are finite)."""
+    import arviz as az
+
+    lw = np.asarray(log_weights, float)
+    lw = lw[np.isfinite(lw)]
+    if lw.size < 2:
+        return float("inf")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # ArviZ warns about k̂ itself; the caller reports it
+        _, khat = az.psislw(lw - lw.max())
+    return float(khat)
+
+
+def sample_with_surrogate(true_log_like, problem, start: np.ndarray, sc: SurrogateConfig, run_chains, seed: int = 0,
+                          progress: bool = False):  # fmt: skip
+    """(chains [E, steps, W, D], log_probs, acceptance, SurrogateRecord) by the module docstring's
+    steps. true_log_like(thetas [S, D]) -> [S] (batched, -inf where unstable); start: the first
+    design (`design`); run_chains(log_prob) -> (chains, log_probs, acceptance), e.g.
+    `run_ensembles` with the posterior's settings."""
+    rng = np.random.default_rng(int(seed))
+    t0 = time.time()
+    thetas = np.asarray(start, float)
+    ll = np.asarray(true_log_like(thetas), float)
+    record = SurrogateRecord(thetas, ll)
+    log.info("posterior surrogate: design of %d evaluated in %.0f s (best log L %.2f)", len(ll), time.time() - t0,
+             np.nanmax(np.where(np.isfinite(ll), ll, np.nan)))  # fmt: skip
+    chains = log_probs = acceptance = None
+    for r in range(int(sc.max_rounds)):
+        t_round = time.time()
+        surrogate = GPSurrogate(problem.low, problem.high, sc.clip, seed + r).fit(record.thetas, record.log_like)
+        chains, log_probs, acceptance = run_chains(surrogate)
+        pool = chains[:, chains.shape[1] // 2 :].reshape(-1, chains.shape[-1])
+        draws = pool[rng.choice(len(pool), size=min(int(sc.n_validate), len(pool)), replace=False)]
+        truth = np.asarray(true_log_like(draws), float)
+        approx = surrogate(draws)
+        err = truth - approx
+        khat = psis_khat(err)
+        finite = np.isfinite(err)
+        rmse = float(np.sqrt(np.mean(err[finite] ** 2))) if finite.any() else float("inf")
+        record.rounds.append(
+            {
+                "round": r + 1,
+                "n_design": int(len(record.log_like)),
+                "khat": khat,
+                "rmse_nats": rmse,
+                "max_abs_nats": float(np.max(np.abs(err[finite]))) if finite.any() else float("inf"),
+                "unstable_draws": int((~np.isfinite(truth)).sum()),
+                "lengthscales": _lengthscales(surrogate),
+                "seconds": float(time.time() - t_round),
+            }
+        )
+        record.thetas = np.concatenate([record.thetas, draws])
+        record.log_like = np.concatenate([record.log_like, truth])
+        log.info("posterior surrogate: round %d, design %d, k-hat %.2f, rmse %.2f nats", r + 1,
+                 record.rounds[-1]["n_design"], khat, rmse)  # fmt: skip
+        if progress:
+            print(f"posterior surrogate: round {r + 1}: k-hat {khat:.2f}, rmse {rmse:.2f} nats", flush=True)
+        if khat <= sc.khat_max:
+            record.validated = True
+            break
+    return chains, log_probs, acceptance, record
+
+
+def _lengthscales(surrogate: GPSurrogate) -> list | None:
+    """The fitted RBF length scales in unit-box coordinates (how far each parameter matters)."""
+    try:
+        return [float(v) for v in np.atleast_1d(surrogate.gp.kernel_.k1.k2.length_scale)]
+    except AttributeError:
+        return None

@@ -70,6 +70,10 @@ class PosteriorConfig:
     acceptance_max: float = 0.75
     # posterior predictive
     n_predictive: int = 32  # posterior draws rolled out over every frame for the bands
+    # the forecast's model discrepancy (sgdr.posterior.forecast): the misfit measured on the fit frames,
+    # growing by discrepancy_growth object sizes per second after them; band_level: the predictive ball's level
+    discrepancy_growth: float = 0.0
+    band_level: float = 0.9
 
 
 PRIOR_CHECKS = {name: vector(2) for name in PARAMETERS}
@@ -111,6 +115,8 @@ CHECKS: dict[str, Check] = {
     "acceptance_min": between(0.0, 1.0),
     "acceptance_max": between(0.0, 1.0),
     "n_predictive": at_least(1),
+    "discrepancy_growth": at_least(0.0, "object sizes per second; 0: the fit frames' misfit, not growing"),
+    "band_level": between(0.0, 1.0, lo_open=True),
 }
 
 

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from sgdr.evaluate.geometry import chamfer_distance
+from sgdr.posterior import forecast
 from sgdr.report.html import Section, esc, image, paragraph, table, video
 from sgdr.report.media import playback, tile, write_video
 
@@ -28,7 +29,18 @@ def heights(centres: np.ndarray, ground_point, ground_normal) -> tuple[np.ndarra
 
 
 def predictive(
-    rollout_all, centre_map, problem, samples: np.ndarray, median: np.ndarray, n_draws: int, seq, seed=0, map_theta=None
+    rollout_all,
+    centre_map,
+    problem,
+    samples: np.ndarray,
+    median: np.ndarray,
+    n_draws: int,
+    seq,
+    seed=0,
+    map_theta=None,
+    growth: float = 0.0,
+    size: float = 1.0,
+    level: float = 0.9,
 ):
     """Bands and truth over every frame. rollout_all(samples) -> (positions [S, T, N_A, 3], stable);
     samples [N, D] the kept posterior samples; median [D]; map_theta [D] the identified values (the
@@ -41,7 +53,12 @@ def predictive(
     the run's baseline `sgdr.evaluate.baselines`), their means over the future frames, and the share of
     frames whose true centre-of-mass height lies in the 5-95% band, both as heights and as
     displacements from frame 0 (`*_disp_*`: the truth's particles are not the Gaussian centres,
-    so their heights differ by a representation offset at rest, where every draw agrees)."""
+    so their heights differ by a representation offset at rest, where every draw agrees).
+
+    `com_ball`: the centre of mass's `level` predictive ball over every frame with the model
+    discrepancy (`sgdr.posterior.forecast`: σ_fit from the images, growing by `growth` x `size`
+    per second after the fit window), the draws' displacements beside it, and with ground truth the
+    share of fit and future frames whose true displacement lies inside it."""
 
     rng = np.random.default_rng(seed)
     pick = rng.choice(samples.shape[0], size=min(int(n_draws), samples.shape[0]), replace=False)
@@ -69,7 +86,7 @@ def predictive(
             q05, q50, q95 = np.percentile(curve[draws], [5, 50, 95], axis=0)
             out[name] = {"q05": q05.tolist(), "q50": q50.tolist(), "q95": q95.tolist()}
         out[name + "_median_prediction"] = curve[0].tolist() if ok[0] else None
-    truth_com, truth_low, cd, map_cd, still_cd = [], [], [], [], []
+    truth_com, truth_low, cd, map_cd, still_cd, truth_com3 = [], [], [], [], [], []
     if seq.gt_dir is not None and ok[0]:
         for f in range(centres.shape[1]):
             gt = seq.gt_particles(f) if f < seq.n_frames else None
@@ -77,12 +94,22 @@ def predictive(
                 break
             c, lo = heights(gt[None], seq.ground_point, seq.ground_normal)
             truth_com.append(float(c[0]))
+            truth_com3.append(np.asarray(gt, float).mean(axis=0))
             truth_low.append(float(lo[0]))
             cd.append(chamfer_distance(centres[0, f], gt))
             if f >= seq.n_fit:  # the run's physics-free "still": the last fit frame's centres held
                 still_cd.append(chamfer_distance((map_centres if map_ok else centres[0])[seq.n_fit - 1], gt))
             if map_ok:
                 map_cd.append(chamfer_distance(map_centres[f], gt))
+    out["com_ball"] = _com_ball(centres, draws, map_centres if map_ok else centres[0], seq, growth, size, level, seed)
+    if truth_com3:
+        truth_disp = np.asarray(truth_com3) - truth_com3[0]
+        ball = out["com_ball"]
+        t = truth_disp.shape[0]
+        hit = forecast.inside(truth_disp, np.asarray(ball["centre"])[:t], np.asarray(ball["radius"])[:t])
+        ball["truth"] = truth_disp.tolist()
+        ball["truth_inside_fit"] = float(hit[1 : seq.n_fit].mean()) if seq.n_fit > 1 else None
+        ball["truth_inside_future"] = float(hit[seq.n_fit :].mean()) if t > seq.n_fit else None
     out["truth_com_height"] = truth_com or None
     out["truth_lowest_height"] = truth_low or None
     out["median_cd_per_frame"] = cd or None  # x1e3 scene units², as the run's scores
@@ -113,6 +140,30 @@ def predictive(
                 float(inside_d[seq.n_fit :].mean()) if t.size > seq.n_fit else None
             )
     return out, centres, ok
+
+
+def _com_ball(centres, draws, point, seq, growth, size, level, seed) -> dict:
+    """The centre of mass's predictive ball (`sgdr.posterior.forecast`) from centres [S, T, P, 3]
+    (draws marked by `draws`), σ_fit measured on the point prediction's centres `point` [T, P, 3]."""
+    n_fit = min(int(seq.n_fit), centres.shape[1])
+    com = centres.mean(axis=2)  # [S, T, 3]
+    disp = com - com[:, :1]
+    use = disp[draws] if draws.any() else disp[:1]
+    centre = np.median(use, axis=0)  # [T, 3]
+    sigma_fit = forecast.fit_misfit(seq, point, n_fit)
+    sigma = forecast.sigma_over_time(sigma_fit, centres.shape[1], seq.fps, size, growth)
+    radius = forecast.ball_radius(use, centre, sigma, level, seed=seed)
+    return {
+        "level": float(level),
+        "growth": float(growth),
+        "size": float(size),
+        "fps": float(seq.fps),
+        "sigma_fit": sigma_fit.tolist(),
+        "sigma": sigma.tolist(),
+        "radius": radius.tolist(),
+        "centre": centre.tolist(),
+        "draws": use.tolist(),
+    }
 
 
 def ensemble_video(seq, centres: np.ndarray, stable: np.ndarray, path, max_views: int = 4, size: int = 192):
@@ -202,14 +253,27 @@ def plot_bands(pred: dict, fps: float, path):
 
     t = np.arange(pred["frames"])
     panels = ["com_height", "lowest_height"] + (["cd"] if pred.get("median_cd_per_frame") else [])
+    panels += ["ball"] if pred.get("com_ball") else []
     fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.4), squeeze=False)
     titles = {
         "com_height": "centre of mass height",
         "lowest_height": "lowest point height",
         "cd": "CD x1e3 against the true particles",
+        "ball": "centre of mass: 90% ball with the model discrepancy",
     }
     for ax, name in zip(axes[0], panels):
-        if name == "cd":
+        if name == "ball":
+            ball = pred["com_ball"]
+            ax.fill_between(t, 0, ball["radius"], color="#3c78d8", alpha=0.3, label=f"{ball['level']:.0%} radius")
+            ax.plot(t, ball["sigma"], color="#3c78d8", ls=":", label="discrepancy σ per axis")
+            if ball.get("truth"):
+                err = np.linalg.norm(
+                    np.asarray(ball["truth"]) - np.asarray(ball["centre"])[: len(ball["truth"])], axis=-1
+                )
+                ax.plot(t[: err.size], err, "k--", label="truth's distance from the centre")
+            ax.set_ylabel("scene units")
+            ax.legend(fontsize=7)
+        elif name == "cd":
             for key, label, style in (
                 ("median_cd_per_frame", "posterior median", dict(color="#3c78d8", marker="o")),
                 ("map_cd_per_frame", "point estimate", dict(color="#e69138", marker=".")),
@@ -320,6 +384,18 @@ def section(record: dict, out_dir):
             f"mass {100 * pred['com_height_disp_truth_inside_fit']:.0f}% of fit frames after frame 0, "
             f"{100 * pred['com_height_disp_truth_inside_future']:.0f}% of future frames."
         )
+    ball = pred.get("com_ball") or {}
+    if ball:
+        cap += (
+            f" The {ball['level']:.0%} ball of the centre of mass adds the model discrepancy: the misfit measured on the "
+            f"fit frames' silhouettes (σ {ball['sigma_fit'][-1]:.3g} scene units per axis at the last fit frame), "
+            f"growing by {ball['growth']:g} object sizes per second after them."
+        )
+        if ball.get("truth_inside_future") is not None:
+            cap += (
+                f" Truth inside the ball: {100 * ball['truth_inside_fit']:.0f}% of fit frames after frame 0, "
+                f"{100 * ball['truth_inside_future']:.0f}% of future frames."
+            )
     if pred.get("median_future_cd") is not None:
         cap += f" Future CD (x1e3, Gaussian centres against the true particles): posterior median {pred['median_future_cd']:.3g}"
         if pred.get("map_future_cd") is not None:

@@ -100,6 +100,9 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
         seq,
         seed=cfg.seed,
         map_theta=problem.map_theta,
+        growth=pc.discrepancy_growth,
+        size=float(np.ptp(asset.anchors, axis=0).max()),
+        level=pc.band_level,
     )
     truth = twin_truth(seq, asset_dir, problem)
     notes = []

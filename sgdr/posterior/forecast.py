@@ -1,0 +1,116 @@
+"""The forecast's model-discrepancy term: how far the object's centre of mass may stray from what
+the spring-mass asset predicts, beyond what its parameter uncertainty allows.
+
+The posterior's draws say which futures the model allows; on data from another simulator (MPM) or
+a real capture the model itself is wrong, and its error grows with the horizon. So the predictive
+band adds, per frame t, an isotropic Gaussian error of standard deviation (per axis)
+
+    σ(t) = σ_fit(t)                                         fit frames t < n_fit
+    σ(t) = sqrt(σ_end² + (γ · size · h_t)²)                 future, h_t = (t - n_fit + 1) / fps seconds
+
+σ_fit(t), the model's own misfit on the fit frames, is measured from the images, not from any
+ground truth: for each view, the displacement of the projected centre of the asset's bound
+Gaussian centres from frame 0 against the displacement of the observed silhouette's centroid,
+in pixels, times the depth over the focal length (scene units); a view sees two of the three axes,
+so σ_fit = RMS over the views / sqrt(2). σ_end is its RMS over the last third of the fit frames.
+γ (sizes per second, `posterior.discrepancy_growth`) is the one number calibrated on null MPM
+sequences (the seven objects, leave-one-object-out in docs/posterior.md; `calibrate_growth`).
+
+The 90% predictive region of the centre of mass at frame t is a ball around the draws' median
+displacement whose radius is the 90% quantile of the draws' displacements plus the discrepancy
+noise (`ball_radius`); the truth lies inside when its own displacement from frame 0 is within it
+(displacements, because the truth's particles and the Gaussians' centres differ by a
+representation offset at rest).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def fit_misfit(seq, centres: np.ndarray, n_fit: int, views=None) -> np.ndarray:
+    """[n_fit] σ_fit(t) per axis, scene units (module docstring); centres [T >= n_fit, P, 3] of the
+    asset's prediction. Views whose silhouette is empty in some fit frame are skipped."""
+    views = range(len(seq.cameras)) if views is None else views
+    err = []
+    for v in views:
+        cam = seq.cameras[v]
+        row = []
+        for f in range(int(n_fit)):
+            mask = seq.image(v, f)[..., 3] > 0.5
+            if not mask.any():
+                row = None
+                break
+            rr, cc = np.nonzero(mask)
+            seen = np.array([cc.mean() + 0.5, rr.mean() + 0.5])
+            uv, z = cam.project(np.asarray(centres[f], float))
+            row.append((uv.mean(axis=0), seen, float(np.mean(z))))
+        if row is None:
+            continue
+        p0, m0, _ = row[0]
+        focal = np.array([cam.K[0, 0], cam.K[1, 1]])
+        err.append([((p - p0) - (m - m0)) * z / focal for p, m, z in row])  # [n_fit, 2] scene units
+    if not err:
+        return np.zeros(int(n_fit))
+    e = np.asarray(err)  # [V, n_fit, 2]
+    return np.sqrt(np.mean(np.sum(e**2, axis=-1), axis=0) / 2.0)
+
+
+def sigma_over_time(sigma_fit: np.ndarray, n_frames: int, fps: float, size: float, growth: float) -> np.ndarray:
+    """[n_frames] σ(t) (module docstring)."""
+    sigma_fit = np.asarray(sigma_fit, float)
+    n_fit = sigma_fit.size
+    tail = sigma_fit[-max(1, n_fit // 3) :]
+    end = float(np.sqrt(np.mean(tail**2)))
+    h = (np.arange(int(n_frames)) - n_fit + 1) / float(fps)
+    out = np.sqrt(end**2 + (float(growth) * float(size) * h) ** 2)
+    out[:n_fit] = sigma_fit[: min(n_fit, int(n_frames))]
+    return out
+
+
+def ball_radius(draws: np.ndarray, centre: np.ndarray, sigma: np.ndarray, level: float = 0.9, n_noise: int = 64,
+                seed: int = 0) -> np.ndarray:  # fmt: skip
+    """[T] radius around centre [T, 3] holding `level` of the predictive: draws [S, T, 3] (the
+    posterior draws' centre-of-mass displacements) plus N(0, σ(t)² I) (seeded)."""
+    draws = np.asarray(draws, float)
+    rng = np.random.default_rng(seed)
+    noise = (
+        rng.standard_normal((draws.shape[0], int(n_noise), draws.shape[1], 3)) * np.asarray(sigma)[None, None, :, None]
+    )
+    d = np.linalg.norm(draws[:, None] + noise - np.asarray(centre)[None, None], axis=-1)  # [S, n, T]
+    return np.quantile(d.reshape(-1, d.shape[-1]), float(level), axis=0)
+
+
+def inside(truth: np.ndarray, centre: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """[T] bool: the truth's displacement [T, 3] within the ball."""
+    return np.linalg.norm(np.asarray(truth) - np.asarray(centre), axis=-1) <= np.asarray(radius) + 1e-12
+
+
+def coverage(case: dict, growth: float, level: float = 0.9, seed: int = 0) -> float:
+    """Share of the future frames whose true centre of mass lies in the `level` ball of one case
+    ({draws [S, T, 3], centre [T, 3], truth [T, 3], sigma_fit [n_fit], fps, size})."""
+    n_fit = len(case["sigma_fit"])
+    truth = np.asarray(case["truth"], float)
+    t = truth.shape[0]
+    sigma = sigma_over_time(case["sigma_fit"], t, case["fps"], case["size"], growth)
+    r = ball_radius(np.asarray(case["draws"])[:, :t], np.asarray(case["centre"])[:t], sigma, level, seed=seed)
+    return float(inside(truth, np.asarray(case["centre"])[:t], r)[n_fit:].mean())
+
+
+def calibrate_growth(cases: list, level: float = 0.9, hi: float = 50.0, seed: int = 0) -> float:
+    """The smallest γ >= 0 whose pooled future coverage over `cases` (each as `coverage`'s,
+    weighted by its future frames) reaches `level` (bisection; `hi` when none below it does)."""
+
+    def pooled(growth: float) -> float:
+        n = [len(c["truth"]) - len(c["sigma_fit"]) for c in cases]
+        return float(np.average([coverage(c, growth, level, seed) for c in cases], weights=n))
+
+    if pooled(0.0) >= level:
+        return 0.0
+    lo, up = 0.0, float(hi)
+    if pooled(up) < level:
+        return up
+    for _ in range(30):
+        mid = 0.5 * (lo + up)
+        lo, up = (lo, mid) if pooled(mid) >= level else (mid, up)
+    return up

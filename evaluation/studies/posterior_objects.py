@@ -3,6 +3,7 @@
     python -m evaluation.studies.posterior_objects                       # the preset's runs outputs/<object>_small_s0
     python -m evaluation.studies.posterior_objects --objects torus,cream --set posterior.n_steps=80
     python -m evaluation.studies.posterior_objects --summary             # the table, from the results file
+    python -m evaluation.studies.posterior_objects --jobs 2 --threads 1  # two objects at a time
 
 For each object's finished reconstruction (`outputs/<object>_<preset>_s0`, as `make reproduce` or
 `make demo` leaves it) `experiments/posterior.py` computes the posterior of the run's physics on
@@ -16,6 +17,11 @@ file (`--rerun` runs them again; later lines supersede earlier ones). The data a
 by the MPM, not by the spring-mass model: the truth is outside the model class, so these numbers
 measure how the posterior behaves under misspecification, not its calibration (twins do that:
 evaluation/studies/calibrate_posterior.py).
+
+The summary also calibrates the forecast's model discrepancy (`posterior.discrepancy_growth`,
+sgdr/posterior/forecast.py) leave-one-object-out: γ from every other object's future frames, the
+held-out object's share of future frames whose true centre of mass lies in the 90% ball with it;
+and γ from all of them, the default for data the calibration has not seen.
 """
 
 from __future__ import annotations
@@ -24,7 +30,9 @@ import argparse
 import json
 import subprocess
 import sys
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from evaluation import ROOT
@@ -57,7 +65,12 @@ def record_of(obj: str, run_dir: Path, post: dict, seconds: float, commit: str) 
         "median": d["median"],
         "q05": d["q05"],
         "q95": d["q95"],
-        "sigma_px": post["likelihood"]["sigma_px"],
+        "likelihood": post["likelihood"].get("kind"),
+        "sigma_px": post["likelihood"].get("sigma_px"),
+        "profile_log10_k_shift": post["likelihood"].get("profile_log10_k_shift"),
+        "surrogate": (post.get("sampler") or {}).get("surrogate"),
+        "ball": _ball_case(pred.get("com_ball")),
+        "ball_inside_future": (pred.get("com_ball") or {}).get("truth_inside_future"),
         "com_inside_fit": pred.get("com_height_truth_inside_fit"),
         "com_inside_future": pred.get("com_height_truth_inside_future"),
         "com_disp_inside_fit": pred.get("com_height_disp_truth_inside_fit"),
@@ -79,6 +92,33 @@ def record_of(obj: str, run_dir: Path, post: dict, seconds: float, commit: str) 
     }
 
 
+def _ball_case(ball: dict | None) -> dict | None:
+    """What the leave-one-object-out calibration needs of the predictive ball (forecast.coverage)."""
+    if not ball or not ball.get("truth"):
+        return None
+    return {k: ball[k] for k in ("sigma_fit", "fps", "size", "draws", "centre", "truth", "growth", "level")}
+
+
+def leave_one_out(results: dict, level: float = 0.9) -> dict:
+    """γ (posterior.discrepancy_growth) calibrated on every object but one and the held-out
+    object's future coverage of the ball with it; and γ on all of them (the default for new data).
+    Only objects whose record holds the ball's case take part."""
+    from sgdr.posterior.forecast import calibrate_growth, coverage
+
+    cases = {o: r["ball"] for o, r in results.items() if r.get("ball")}
+    out = {"objects": {}, "growth_all": calibrate_growth(list(cases.values()), level) if cases else None}
+    for obj, case in cases.items():
+        others = [c for o, c in cases.items() if o != obj]
+        if not others:
+            continue
+        growth = calibrate_growth(others, level)
+        out["objects"][obj] = {"growth": growth, "inside_future": coverage(case, growth, level)}
+    vals = [v["inside_future"] for v in out["objects"].values()]
+    out["mean_inside_future"] = sum(vals) / len(vals) if vals else None
+    out["min_inside_future"] = min(vals) if vals else None
+    return out
+
+
 def _fmt(x, spec=".3g"):
     return "-" if x is None else format(x, spec)
 
@@ -86,17 +126,21 @@ def _fmt(x, spec=".3g"):
 def markdown(results: dict) -> str:
     lines = [
         "| object | converged | log10 k shift 5-95% | com in band, future (height / displacement) "
-        "| future CD: posterior median / point estimate / still | minutes |",
-        "|---|---|---|---|---|---|",
+        "| com in the 90% ball, future (leave-one-out γ) | future CD: posterior median / point estimate / still "
+        "| minutes |",
+        "|---|---|---|---|---|---|---|",
     ]
+    loo = leave_one_out(results)["objects"]
     for obj, r in results.items():
         shift = "-"
         if "log10_k_shift" in r["median"]:
             shift = f"{r['median']['log10_k_shift']:+.2f} [{r['q05']['log10_k_shift']:+.2f}, {r['q95']['log10_k_shift']:+.2f}]"
         cover = f"{_fmt(r['com_inside_future'], '.0%')} / {_fmt(r['com_disp_inside_future'], '.0%')}"
         cds = f"{_fmt(r['median_future_cd'])} / {_fmt(r['map_future_cd'])} / {_fmt(r['still_future_cd'])}"
+        ball = f"{loo[obj]['inside_future']:.0%} (γ {loo[obj]['growth']:.3g})" if obj in loo else "-"
         lines.append(
-            f"| {obj} | {'yes' if r['converged'] else 'no'} | {shift} | {cover} | {cds} | {r['seconds'] / 60:.1f} |"
+            f"| {obj} | {'yes' if r['converged'] else 'no'} | {shift} | {cover} | {ball} | {cds} "
+            f"| {r['seconds'] / 60:.1f} |"
         )
     return "\n".join(lines)
 
@@ -111,6 +155,8 @@ def summary(results: dict) -> dict:
     return {
         "objects": len(rows),
         "converged": sum(bool(r["converged"]) for r in rows),
+        "leave_one_out": leave_one_out(results),
+        "ball_inside_future_mean": mean("ball_inside_future"),
         "com_inside_future_mean": mean("com_inside_future"),
         "com_disp_inside_future_mean": mean("com_disp_inside_future"),
         "median_future_cd_mean": mean("median_future_cd"),
@@ -143,6 +189,7 @@ def main(argv=None) -> int:
     p.add_argument("--runs", default="outputs/{object}_{preset}_s0", help="run folder pattern ({object}, {preset})")
     p.add_argument("--results", default="", help="default results/posterior_objects_<preset>.jsonl")
     p.add_argument("--threads", type=int, default=0)
+    p.add_argument("--jobs", type=int, default=1, help="objects run at once (each with --threads)")
     p.add_argument("--set", action="append", default=[], help="a config override for every posterior (key=value)")
     p.add_argument("--rerun", action="store_true", help="run objects already in the results file again")
     p.add_argument("--summary", action="store_true", help="print the table and the summary, run nothing")
@@ -163,7 +210,8 @@ def main(argv=None) -> int:
     todo = [o for o in objects if args.rerun or o not in results]
     print(f"{len(todo)} of {len(objects)} objects to run; results append to {results_path}", flush=True)
     results_path.parent.mkdir(parents=True, exist_ok=True)
-    for obj in todo:
+
+    def one(obj: str) -> None:
         run_dir = runs[obj]
         cmd = [sys.executable, "experiments/posterior.py", f"preset={args.preset}", f"posterior.run={run_dir}"]
         cmd += [f"threads={args.threads}", "tracking.enabled=false", *args.set]
@@ -174,12 +222,16 @@ def main(argv=None) -> int:
         if proc.returncode != 0:
             tail = log_file.read_text().strip().splitlines()[-2:]
             print(f"{obj}: posterior failed ({log_file}): {' / '.join(tail)}", flush=True)
-            continue
+            return
         post = json.loads((run_dir / "posterior" / "posterior.json").read_text())
         rec = record_of(obj, run_dir, post, time.time() - t0, _commit())
-        with results_path.open("a") as f:
+        with lock, results_path.open("a") as f:
             f.write(json.dumps(rec) + "\n")
         print(f"{obj}: {post['headline'][:100]} ({rec['seconds'] / 60:.1f} min)", flush=True)
+
+    lock = threading.Lock()
+    with ThreadPoolExecutor(max(1, args.jobs)) as pool:
+        list(pool.map(one, todo))
     results = read_results(results_path)
     print(markdown(results))
     print(json.dumps(summary(results)))

@@ -131,13 +131,17 @@ def design(problem, candidates: np.ndarray, n_initial: int, n_sobol: int, seed: 
 
 
 def psis_khat(log_weights: np.ndarray) -> float:
-    """ArviZ's Pareto k̂ of importance log-weights (inf when fewer than 2 are finite)."""
+    """ArviZ's Pareto k̂ of importance log-weights (inf when fewer than 2 are finite, 0 when all
+    are equal). A draw whose true likelihood is -inf (an unstable rollout) carries weight 0 and
+    no tail; the record counts such draws separately."""
     import arviz as az
 
     lw = np.asarray(log_weights, float)
     lw = lw[np.isfinite(lw)]
     if lw.size < 2:
         return float("inf")
+    if np.ptp(lw) < 1e-9:  # equal weights: the surrogate is exact here, no tail to fit
+        return 0.0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # ArviZ warns about k̂ itself; the caller reports it
         _, khat = az.psislw(lw - lw.max())

@@ -1,0 +1,170 @@
+"""The posterior's rendered likelihood, its surrogate sampler and the forecast's discrepancy ball
+(issue 36): each on a case whose answer is known without the pipeline."""
+
+import numpy as np
+import pytest
+
+from sgdr.posterior.forecast import ball_radius, calibrate_growth, coverage, fit_misfit, inside, sigma_over_time
+from sgdr.posterior.likelihood import RenderedLikelihood
+from sgdr.posterior.sample import Problem, run_ensembles
+from sgdr.posterior.surrogate import SurrogateConfig, design, psis_khat, sample_with_surrogate
+
+
+def test_rendered_likelihood_splits_noise_from_a_growing_discrepancy():
+    """The MAP's misfit per frame: the smallest is the noise, the rest a non-decreasing
+    discrepancy; the MAP scores about -n_vf / 2 and 10% more loss everywhere costs ~ n_vf x 0.05."""
+    m = np.array([0.02, 0.021, 0.025, 0.024, 0.03, 0.04])  # per frame, with a dip at frame 3
+    losses = np.repeat(m[:, None], 5, axis=1)  # [F, V]
+    lik = RenderedLikelihood.at_map(losses, floor=1e-4, temperature=1.0)
+    assert lik.noise == pytest.approx(0.02)
+    assert np.all(np.diff(lik.discrepancy) >= -1e-12) and lik.discrepancy[0] == pytest.approx(0.0)
+    assert lik.discrepancy[-1] == pytest.approx(0.02)
+    n_vf = losses.size
+    at_map = lik.log_likelihood(losses[None])[0]
+    assert at_map == pytest.approx(-n_vf / 2, rel=0.05)
+    worse = lik.log_likelihood(1.1 * losses[None])[0]
+    assert at_map - worse == pytest.approx(0.05 * n_vf, rel=0.1)
+    # later frames, where the model misses more, weigh less: the same extra loss costs less there
+    early, late = losses.copy(), losses.copy()
+    early[1] += 0.01
+    late[-1] += 0.01
+    assert lik.log_likelihood(late[None])[0] > lik.log_likelihood(early[None])[0]
+    # an unstable sample (NaN losses) has zero probability; the temperature flattens
+    assert lik.log_likelihood(np.full((1, *losses.shape), np.nan))[0] == -np.inf
+    hot = RenderedLikelihood.at_map(losses, 1e-4, 2.0)
+    assert hot.log_likelihood(losses[None])[0] == pytest.approx(at_map / 2)
+    # a perfect fit: the floor keeps the scale finite
+    assert RenderedLikelihood.at_map(np.zeros((3, 2)), 1e-4, 1.0).noise == pytest.approx(1e-4)
+
+
+def _gaussian_problem():
+    problem = Problem(["a", "b"], np.array([-1.0, 0.0]), np.array([1.0, 2.0]), np.array([0.1, 1.0]))
+    mean, sd = np.array([0.2, 0.9]), np.array([0.08, 0.25])
+    calls = []
+
+    def log_like(thetas):
+        thetas = np.atleast_2d(thetas)
+        calls.append(len(thetas))
+        return -0.5 * np.sum(((thetas - mean) / sd) ** 2, axis=1)
+
+    return problem, mean, sd, log_like, calls
+
+
+def test_the_surrogate_posterior_matches_a_known_gaussian_with_few_true_evaluations():
+    problem, mean, sd, log_like, calls = _gaussian_problem()
+    sc = SurrogateConfig(n_initial=0, n_sobol=32, n_validate=32, max_rounds=4, chain_steps=1500, clip=60.0)
+    start = design(problem, np.zeros((0, 2)), sc.n_initial, sc.n_sobol, seed=0)
+    assert start.shape == (33, 2) and np.allclose(start[0], problem.map_theta)
+
+    def chains_of(lp):
+        return run_ensembles(lp, problem, 10, sc.chain_steps, 4, 0.05, seed=0, move="de", space="logit")
+
+    chains, _, acc, record = sample_with_surrogate(log_like, problem, start, sc, chains_of, seed=0)
+    assert record.validated and record.rounds[-1]["khat"] <= 0.7
+    assert sum(calls) == record.log_like.size <= 33 + 4 * 32  # the true likelihood only at the design and checks
+    pooled = chains[:, chains.shape[1] // 2 :].reshape(-1, 2)
+    assert np.allclose(pooled.mean(axis=0), mean, atol=0.3 * sd)
+    assert np.allclose(pooled.std(axis=0), sd, rtol=0.25)
+    assert 0.15 < acc.mean() < 0.75
+
+
+def test_the_check_fails_a_surrogate_that_does_not_stand_for_the_likelihood():
+    """One round, on a design far from a narrow peak: the draws land where the truth is far below
+    the surrogate, and the record says it is not validated."""
+    problem, _, _, _, _ = _gaussian_problem()
+
+    def narrow(thetas):
+        thetas = np.atleast_2d(thetas)
+        return -0.5 * np.sum(((thetas - np.array([0.9, 1.9])) / 0.01) ** 2, axis=1)
+
+    sc = SurrogateConfig(n_initial=0, n_sobol=8, n_validate=24, max_rounds=1, chain_steps=300)
+    start = design(problem, np.zeros((0, 2)), 0, 8, seed=1)
+
+    def chains_of(lp):
+        return run_ensembles(lp, problem, 10, sc.chain_steps, 4, 0.05, seed=0, move="de", space="logit")
+
+    *_, record = sample_with_surrogate(narrow, problem, start, sc, chains_of, seed=0)
+    assert not record.validated and record.rounds[0]["khat"] > 0.7
+    assert psis_khat(np.zeros(10)) < 0.7  # equal weights: a perfect surrogate
+
+
+def test_the_design_keeps_candidates_inside_the_prior_best_first():
+    problem = Problem(["a"], np.array([0.0]), np.array([1.0]), np.array([0.5]))
+    cand = np.array([[0.3], [1.5], [0.7], [0.1]])
+    d = design(problem, cand, n_initial=2, n_sobol=0, seed=0)
+    assert d[:, 0].tolist() == [0.5, 0.3, 0.7]
+
+
+class _Cam:
+    """An orthographic-looking pinhole camera on the x axis: pixel u along +y, v along -z."""
+
+    def __init__(self, focal=300.0, depth=2.0, size=192):
+        self.K = np.array([[focal, 0, size / 2], [0, focal, size / 2], [0, 0, 1.0]])
+        self.depth, self.size = depth, size
+
+    def project(self, points):
+        p = np.asarray(points, float)
+        z = self.depth - p[:, 0]
+        uv = np.stack([p[:, 1] / z * self.K[0, 0] + self.K[0, 2], -p[:, 2] / z * self.K[1, 1] + self.K[1, 2]], 1)
+        return uv, z
+
+
+class _Seq:
+    """Silhouettes of a disc of points moving by `shift(f)` along y, seen by one `_Cam`."""
+
+    def __init__(self, cam, shift, n_frames):
+        self.cameras, self.shift, self.n_frames = [cam], shift, n_frames
+        rng = np.random.default_rng(0)
+        self.points = rng.uniform(-0.1, 0.1, (20000, 3))
+
+    def image(self, v, f):
+        img = np.zeros((self.cameras[0].size, self.cameras[0].size, 4))
+        uv, _ = self.cameras[0].project(self.points + [0, self.shift(f), 0])
+        ij = np.clip(np.floor(uv).astype(int), 0, self.cameras[0].size - 1)
+        img[ij[:, 1], ij[:, 0], 3] = 1.0
+        return img
+
+
+def test_the_fit_misfit_reads_a_lagging_prediction_off_the_silhouettes():
+    """The observed object moves 0.01 per frame along y; the prediction stands still: the misfit at
+    frame f is 0.01 f scene units in the one axis the view sees, / sqrt(2) per axis."""
+    cam = _Cam()
+    seq = _Seq(cam, lambda f: 0.01 * f, 6)
+    predicted = np.repeat(seq.points[None], 6, axis=0)  # [T, P, 3], not moving
+    sigma = fit_misfit(seq, predicted, 6)
+    assert sigma[0] == pytest.approx(0.0, abs=1e-9)
+    assert np.allclose(sigma, 0.01 * np.arange(6) / np.sqrt(2), atol=0.002)
+    # a prediction that moves with the object has (almost) no misfit
+    moving = np.stack([seq.points + [0, 0.01 * f, 0] for f in range(6)])
+    # (what is left: the silhouette's area centroid is not the mean of the projected points under
+    # perspective, ~0.3 px here, 1 px = 0.0067 scene units)
+    assert fit_misfit(seq, moving, 6).max() < 0.003
+
+
+def test_the_ball_covers_what_its_level_says_and_the_growth_calibrates_to_it():
+    """No parameter spread, σ constant: the 90% radius is the chi(3) 90% quantile (2.50 σ). Truths
+    drifting away linearly need a growth > 0; the calibrated growth covers >= 90% and a smaller
+    one does not."""
+    t, n_fit = 30, 10
+    draws = np.zeros((8, t, 3))
+    sigma = np.full(t, 0.01)
+    r = ball_radius(draws, np.zeros((t, 3)), sigma, 0.9, n_noise=4000, seed=0)
+    assert np.allclose(r, 2.50 * 0.01, rtol=0.03)
+    rng = np.random.default_rng(3)
+    cases = []
+    for k in range(6):
+        speed = rng.uniform(0.02, 0.06)  # sizes per second, unknown to the forecast
+        h = np.maximum(np.arange(t) - n_fit + 1, 0) / 24.0
+        truth = np.zeros((t, 3))
+        truth[:, k % 3] = speed * h * 0.5 + rng.normal(0, 0.002, t)
+        cases.append({"draws": draws, "centre": np.zeros((t, 3)), "truth": truth, "sigma_fit": np.full(n_fit, 0.002),
+                      "fps": 24.0, "size": 0.5})  # fmt: skip
+    assert np.mean([coverage(c, 0.0) for c in cases]) < 0.5
+    g = calibrate_growth(cases, 0.9)
+    assert g > 0
+    n = [t - n_fit] * len(cases)
+    assert np.average([coverage(c, g) for c in cases], weights=n) >= 0.9
+    assert np.average([coverage(c, 0.7 * g) for c in cases], weights=n) < 0.9
+    s = sigma_over_time(np.full(n_fit, 0.002), t, 24.0, 0.5, g)
+    assert np.allclose(s[:n_fit], 0.002) and np.all(np.diff(s[n_fit - 1 :]) >= 0)
+    assert inside(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros(2)).all()

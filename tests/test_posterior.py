@@ -359,7 +359,7 @@ def test_tiny_rendered_posterior_converges_on_a_twin(tiny):
     assert cfg.posterior.likelihood == "rendered" and cfg.posterior.sampler == "surrogate"
     record = run_posterior(cfg)
     sur = record["sampler"]["surrogate"]
-    assert sur["validated"] and sur["rounds"][-1]["khat"] <= cfg.posterior.surrogate.khat_max
+    assert sur["validated"] and sur["rounds"][-1]["inside_95"] >= cfg.posterior.surrogate.inside_min
     from sgdr.posterior.run import PROFILE_SHIFTS
 
     # every rendered rollout: the MAP's (the scale), the stiffness profile, the design and the checks
@@ -375,7 +375,7 @@ def test_tiny_rendered_posterior_converges_on_a_twin(tiny):
     ball = record["predictive"]["com_ball"]
     assert len(ball["radius"]) == record["predictive"]["frames"] and ball["truth_inside_future"] is not None
     page = (run_dir / "report" / "report.html").read_text()
-    assert "Gaussian-process surrogate" in page and "PSIS k-hat" in page
+    assert "Gaussian-process surrogate" in page and "95% interval" in page
 
 
 @slow

@@ -136,8 +136,13 @@ def parse_shard(text: str | None) -> tuple[int, int]:
 def sampler_setup(posterior_cfg, twin_scale: int) -> dict:
     """What a record's cases must share: the twins' scale and the sampler's settings."""
     pc = posterior_cfg
+    from dataclasses import asdict
+
     return {
         "twin_scale": int(twin_scale),
+        "likelihood": pc.likelihood,
+        "sampler": pc.sampler,
+        "surrogate": asdict(pc.surrogate) if pc.sampler == "surrogate" else None,
         "moves": pc.moves,
         "space": pc.space,
         "n_steps": int(pc.n_steps),

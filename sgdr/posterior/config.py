@@ -84,7 +84,7 @@ SURROGATE_CHECKS = {
     "max_rounds": at_least(1),
     "chain_steps": at_least(100),
     "clip": positive(),
-    "khat_max": between(0.0, 1.0, lo_open=True),
+    "inside_min": between(0.0, 1.0, lo_open=True),
 }
 
 CHECKS: dict[str, Check] = {

@@ -459,8 +459,10 @@ def _sampling_words(record: dict) -> str:
         words += (
             f", on a Gaussian-process surrogate of log L fitted to {sur['n_true_evaluations']} rendered evaluations "
             f"(the global stage's candidates, Sobol points and each round's draws), {len(sur['rounds'])} round(s); "
-            f"at the last round's draws the surrogate's error was {last['rmse_nats']:.2f} nats RMS and PSIS k-hat "
-            f"{last['khat']:.2f} ({'stands for' if sur['validated'] else 'does NOT stand for'} the likelihood)"
+            f"at the last round's draws {last['inside_95']:.0%} of the true values lay in its 95% interval "
+            f"({'it stands for' if sur['validated'] else 'it does NOT stand for'} the smoothed likelihood; error "
+            f"{last['rmse_nats']:.2f} nats RMS, mean {last['mean_error_nats']:+.2f}, fitted roughness "
+            f"{last['roughness_nats']:.2f} nats, PSIS k-hat of the rough one {last['khat']:.2f})"
         )
     return (
         words + f"; burn-in {d['burn_in']} steps, thinning {d['thin']}, {d['n_kept']} samples kept; "

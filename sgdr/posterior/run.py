@@ -84,7 +84,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
         last = surrogate.rounds[-1]
         diag["failed"].append(
             f"the surrogate did not stand for the rendered likelihood after {len(surrogate.rounds)} round(s): "
-            f"PSIS k-hat {last['khat']:.2f} > {pc.surrogate.khat_max:g} at its last draws "
+            f"{last['inside_95']:.0%} of its last draws inside its 95% interval, < {pc.surrogate.inside_min:g} "
             f"(posterior.surrogate.max_rounds, posterior.surrogate.n_validate)"
         )
         diag["converged"] = False
@@ -144,7 +144,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
         },
     }
     record = write_outputs(strict_json(record), out, run_dir, seq, asset, problem, chains, log_probs, acceptance,
-                           kept, diag, pred, pred_centres, pred_stable, truth, t0)  # fmt: skip
+                           kept, diag, pred, pred_centres, pred_stable, truth, t0, surrogate)  # fmt: skip
     if cfg.tracking.enabled:
         record["mlflow_run_id"] = log_to_mlflow(run_dir, out, record)
     return record
@@ -285,9 +285,10 @@ def twin_truth(seq, asset_dir: Path, problem) -> dict:
 
 
 def write_outputs(record, out, run_dir, seq, asset, problem, chains, log_probs, acceptance, kept, diag, pred,
-                  pred_centres, pred_stable, truth, t0) -> dict:  # fmt: skip
+                  pred_centres, pred_stable, truth, t0, surrogate=None) -> dict:  # fmt: skip
     """samples.npz, the corner, trace and band plots, the ensemble video, posterior.json and the
-    report's 'Posterior' section (when the run has a report)."""
+    report's 'Posterior' section (when the run has a report). With the surrogate sampler,
+    samples.npz also holds every true evaluation (`evaluated` [N, D], `evaluated_log_like` [N])."""
     np.savez(
         out / "samples.npz",
         chains=chains,
@@ -297,6 +298,7 @@ def write_outputs(record, out, run_dir, seq, asset, problem, chains, log_probs, 
         kept=kept,
         burn_in=diag["burn_in"],
         thin=diag["thin"],
+        **({"evaluated": surrogate.thetas, "evaluated_log_like": surrogate.log_like} if surrogate is not None else {}),
     )
     pp.plot_corner(kept, problem.names, out / "corner.png", truth or None, problem.map_theta)
     pp.plot_traces(chains, problem.names, diag["burn_in"], out / "traces.png")

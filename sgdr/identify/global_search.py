@@ -58,7 +58,7 @@ from sgdr.loss import image_loss, image_losses
 from sgdr.observe.images import block_mean, downscaled
 from sgdr.physics.batched import batched_centres, batched_rollout
 from sgdr.physics.laws import CONTACT_PARAMETERS
-from sgdr.physics.simulate import effective_stiffness, model_host
+from sgdr.physics.simulate import doubled_substeps, effective_stiffness, model_host
 from sgdr.render.images import posed, render
 from sgdr.render.splat import render_batch
 
@@ -341,15 +341,34 @@ class PopulationScorer:
         losses = per.reshape(per.shape[0], -1).mean(axis=1)
         return np.where(np.isfinite(losses), losses, UNSTABLE_LOSS)
 
-    def per_image(self, values: dict[str, np.ndarray]) -> np.ndarray:
+    def per_image(self, values: dict[str, np.ndarray], retry: bool = False) -> np.ndarray:
         """[S, n_fit - 1, n_views] image losses of the candidates, fit frames 1 .. n_fit - 1 (what
-        the posterior's rendered likelihood weighs per frame); NaN rows for unstable rollouts."""
-        run = self.rollout(values, len(self.targets))
-        out = np.full((run.positions.shape[0], len(self.targets) - 1, len(self.cameras)), np.nan)
-        stable = np.flatnonzero(run.stable)
-        if stable.size:
-            out[stable] = (
-                self._batched(run.positions[stable]) if self.images_per_call > 1 else self._one_at_a_time(run, stable)
+        the posterior's rendered likelihood weighs per frame); NaN rows for unstable rollouts.
+
+        retry: a candidate unstable at n_t is re-run with n_t doubled while physics.retry_on_nan
+        and physics.max_substeps allow (the single rollout's remedy; the posterior's rollouts do
+        the same), instead of scoring as unstable. The search does not retry: it scores what the
+        asset can simulate at the prediction's n_t."""
+        n = len(self.targets)
+        run = self.rollout(values, n)
+        positions, stable = run.positions, np.asarray(run.stable, bool).copy()
+        n_sub = self.n_t
+        while retry and self.physics_cfg.retry_on_nan and not stable.all():
+            n_sub = doubled_substeps(n_sub, self.physics_cfg)
+            if not n_sub:
+                break
+            redo = np.flatnonzero(~stable)
+            sub = {k: np.broadcast_to(np.asarray(v, float), stable.shape)[redo] for k, v in values.items()}
+            again = batched_rollout(self.model, self.base, self.samples(sub), self.ground, n, self.dt, n_sub,
+                                    self.physics_cfg)  # fmt: skip
+            positions[redo], stable[redo] = again.positions, again.stable
+        out = np.full((positions.shape[0], n - 1, len(self.cameras)), np.nan)
+        ok = np.flatnonzero(stable)
+        if ok.size:
+            out[ok] = (
+                self._batched(positions[ok])
+                if self.images_per_call > 1
+                else self._one_at_a_time(SimpleNamespace(positions=positions), ok)
             )
         return out
 

@@ -80,7 +80,10 @@ class RenderedImages:
     """θ [S, D] -> image losses [S, F, V]: each sample's open-loop rollout of the fit frames from
     rest, rendered on every view and compared with the observed images by the identification's
     own loss ((1-λ) L1 + λ D-SSIM, `recon.lambda_dssim`), through the global search's batched
-    `PopulationScorer` (one S x N_A rollout, then `render_batch` over whole frames of all views).
+    `PopulationScorer` (one S x N_A rollout, then `render_batch` over whole frames of all views);
+    a sample unstable at the asset's n_t is re-run with n_t doubled as physics.retry_on_nan allows
+    (as the posterior's rollouts and the predictive do), so the posterior is not cut off at the
+    stability bound the identified level often sits at.
     So the likelihood sees what the identification saw: the rendered images at
     `image_scale` (k x k block means of the targets, intrinsics / k), at the asset's n_t.
 
@@ -124,7 +127,9 @@ class RenderedImages:
     def __call__(self, thetas: np.ndarray, chunk: int = 32) -> np.ndarray:
         """[S, F, V] losses, NaN rows for unstable rollouts; `chunk` samples per batched call."""
         thetas = np.atleast_2d(np.asarray(thetas, float))
-        parts = [self.scorer.per_image(self.values(thetas[i : i + chunk])) for i in range(0, len(thetas), chunk)]
+        parts = [
+            self.scorer.per_image(self.values(thetas[i : i + chunk]), retry=True) for i in range(0, len(thetas), chunk)
+        ]
         out = np.concatenate(parts) if parts else np.zeros((0, len(self.frames), self.n_views))
         self.calls += len(thetas)
         self.unstable += int(np.sum(~np.isfinite(out.reshape(len(out), -1)).any(axis=1)))

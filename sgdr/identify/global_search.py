@@ -383,7 +383,7 @@ class PopulationScorer:
                     g = posed(self.gaussians, self.binding.apply(t.Array3f(*x.T)))
                     for v, cam in enumerate(self.cameras):
                         loss = image_loss(render(g, cam, self.render_cfg).rgb, self.targets[f][v], self.lam)
-                        out[i, f - 1, v] = float(to_numpy(loss)[0])
+                        out[i, f - 1, v] = float(np.asarray(to_numpy(loss)).reshape(-1)[0])
         return out
 
     def _batched(self, positions: np.ndarray) -> np.ndarray:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import time
 from pathlib import Path
 
@@ -80,6 +81,14 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
         chains, log_probs, acceptance = run_chains(log_prob, pc.n_steps)
     sample_seconds = time.time() - t0
     diag = diagnose(chains, problem.names, pc, acceptance)
+    if surrogate is not None and surrogate.validated and diag["tau_max"] and diag["chain_over_tau"] < pc.tau_factor:
+        # the surrogate stands; its chains are only too short for the 50 τ criterion: lengthen them
+        # (GP predictions only, no renders), at most 10 x posterior.surrogate.chain_steps
+        steps = min(math.ceil(1.2 * pc.tau_factor * diag["tau_max"]), 10 * int(pc.surrogate.chain_steps))
+        log.info("posterior surrogate: chains of %d steps are %.0f τ; again with %d", diag["n_steps"],
+                 diag["chain_over_tau"], steps)  # fmt: skip
+        chains, log_probs, acceptance = run_chains(surrogate.surrogate, steps)
+        diag = diagnose(chains, problem.names, pc, acceptance)
     if surrogate is not None and not surrogate.validated:
         last = surrogate.rounds[-1]
         diag["failed"].append(

@@ -69,6 +69,7 @@ class SurrogateRecord:
     log_like: np.ndarray  # [N]
     rounds: list = field(default_factory=list)  # per round: n_design, khat, rmse, max_abs, seconds
     validated: bool = False
+    surrogate: GPSurrogate | None = None  # the last round's (the validated one when validated)
 
     def to_json(self) -> dict:
         best = int(np.argmax(self.log_like)) if self.log_like.size else -1
@@ -216,6 +217,7 @@ def sample_with_surrogate(true_log_like, problem, start: np.ndarray, sc: Surroga
                 "seconds": float(time.time() - t_round),
             }
         )
+        record.surrogate = surrogate
         record.thetas = np.concatenate([record.thetas, draws])
         record.log_like = np.concatenate([record.log_like, truth])
         log.info("posterior surrogate: round %d, design %d, %.0f%% of the draws inside the 95%% interval, rmse %.2f "

@@ -1,14 +1,18 @@
 """The posterior of a finished run, start to end (`experiments/posterior.py` calls `run_posterior`).
 
 Reads `<posterior.run>/asset`, the observed sequence (`posterior.sequence`, default the run's own
-from RUN.json; e.g. a twin), builds the silhouette likelihood with σ from the identified
-parameters' residual, runs the ensembles, diagnoses them, rolls out the posterior predictive,
-and writes into `<run>/posterior/` (or `posterior.out_dir`):
+from RUN.json; e.g. a twin), builds the likelihood (`posterior.likelihood`: the rendered images,
+scaled by the identified parameters' own misfit; or the silhouettes), samples it
+(`posterior.sampler`: ensembles on a checked Gaussian-process surrogate started from the run's
+global-stage population, or on the likelihood itself), diagnoses the chains, rolls out the
+posterior predictive with the forecast's discrepancy ball, and writes into `<run>/posterior/`
+(or `posterior.out_dir`):
 
   posterior.json   strict JSON: headline, converged, failed criteria, per-parameter median / 5% / 95%,
                    τ, R-hat, ESS, acceptance, priors, likelihood settings, predictive curves, cost
   samples.npz      chains [E, steps, W, D], log_prob [E, steps, W], acceptance [E, W], names,
-                   kept [N, D] (post burn-in, thinned), burn_in, thin
+                   kept [N, D] (post burn-in, thinned), burn_in, thin; with the surrogate also
+                   evaluated [N, D], evaluated_log_like [N] (every rendered evaluation)
   corner.png, traces.png, predictive.png, ensemble.mp4 (the draws' projected centres over the images)
 
 and adds the 'Posterior' section to `<run>/report/report.html` when that page exists.

@@ -14,7 +14,7 @@ help:
 	@echo "make demo       generate + reconstruct + predict + evaluate the torus (small preset)"
 	@echo "make reproduce  the paper's Tables 1-3 (docs/reproduce.md): every method on every object (Hydra multirun, 2 jobs), then results/tables.*"
 	@echo "make oracle     the spring-mass model fitted to the torus's ground-truth particle tracks (OBJECT=...)"
-	@echo "make posterior  emcee posterior of a finished run's physics (RUN=outputs/torus_small_s0, SEQUENCE= a twin)"
+	@echo "make posterior  posterior of a finished run's physics from its rendered images (RUN=outputs/torus_small_s0, SEQUENCE= a twin)"
 	@echo "make diagnose   which model extension a finished run's data ask for (RUN=, SEQUENCE=)"
 	@echo "make diagnose-suite  the diagnosis on injected and null MPM cases (resumable; hours), then its bars"
 
@@ -63,8 +63,9 @@ OBJECT ?= torus
 oracle:
 	$(PYTHON) experiments/oracle.py preset=$(PRESET) method=$(METHOD) synth.object=$(OBJECT)
 
-# The posterior of a finished run's physics (docs/posterior.md): emcee ensembles over a global
-# log10 k shift, kappa, friction, restitution; writes <run>/posterior/ and adds a section to the
+# The posterior of a finished run's physics (docs/posterior.md): a global log10 k shift, kappa,
+# friction, restitution from the rendered images (emcee on a checked Gaussian-process surrogate
+# started from the run's global search); writes <run>/posterior/ and adds a section to the
 # run's report.html. Default: the demo's run. SEQUENCE= observes another sequence (e.g. a twin).
 RUN ?= outputs/torus_$(RUN_TAG)_s0
 SEQUENCE ?=

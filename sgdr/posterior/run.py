@@ -168,8 +168,9 @@ PROFILE_SHIFTS = (-0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5)
 rendered log-likelihood: how sharply the images pin the stiffness level down."""
 
 
-class RenderedLogProbability:
-    """log p(θ) [S] for θ [S, D]: the uniform prior and the rendered likelihood (-inf outside)."""
+class RenderedLogProbability(LogProbability):
+    """log p(θ) [S] for θ [S, D]: the uniform prior and the rendered likelihood (-inf outside);
+    `LogProbability` with the image losses [S, F, V] in place of the silhouette residuals."""
 
     def __init__(self, problem, images: RenderedImages, likelihood: RenderedLikelihood):
         self.problem, self.images, self.likelihood = problem, images, likelihood
@@ -182,13 +183,8 @@ class RenderedLogProbability:
     def unstable(self) -> int:
         return self.images.unstable
 
-    def __call__(self, thetas: np.ndarray) -> np.ndarray:
-        thetas = np.atleast_2d(np.asarray(thetas, float))
-        out = np.full(thetas.shape[0], -np.inf)
-        ok = self.problem.inside(thetas)
-        if ok.any():
-            out[ok] = self.likelihood.log_likelihood(self.images(thetas[ok]))
-        return out
+    def discrepancies(self, thetas: np.ndarray) -> np.ndarray:
+        return self.images(thetas)
 
 
 def _rendered(cfg, run_dir: Path, asset, seq, problem):

@@ -149,7 +149,10 @@ def test_deform4d_follows_a_smooth_deformation(twist):
     assert ratio.max() < 0.12, ratio  # measured 0.059-0.068 / 0.046 / 0.031-0.034 (docs/baselines.md)
     joint = np.asarray(res.step_frames) == -1
     assert joint.sum() == 30 and (~joint).sum() == 3 * 40
-    assert res.image_losses[joint][-1] < res.image_losses[joint][0]
+    # each step samples views, so single steps scatter (Adam's first joint step also overshoots):
+    # compare the means of the first and last five joint steps (measured 0.0020 -> 0.0007)
+    im = res.image_losses[joint]
+    assert im[-5:].mean() < 0.7 * im[:5].mean(), im
 
 
 def test_trilinear_grid_reproduces_a_linear_field_and_its_penalties():

@@ -362,13 +362,19 @@ def test_tiny_rendered_posterior_converges_on_a_twin(tiny):
     assert sur["validated"] and sur["rounds"][-1]["inside_95"] >= cfg.posterior.surrogate.inside_min
     from sgdr.posterior.run import PROFILE_SHIFTS
 
-    # every rendered rollout: the MAP's (the scale), the stiffness profile, the design and the checks
-    assert record["cost"]["rollouts"] == 1 + len(PROFILE_SHIFTS) + sur["n_true_evaluations"]
+    # every rendered rollout once: the design (the MAP first) and the checks, the stiffness profile
+    # (its 0 is the MAP)
+    assert record["cost"]["rollouts"] == sur["n_true_evaluations"] + len(PROFILE_SHIFTS) - 1
     assert record["converged"], record["failed"]
     d = record["diagnostics"]
     assert d["q05"]["log10_k_shift"] <= TRUE_SHIFT <= d["q95"]["log10_k_shift"], (d["q05"], d["q95"])
     lk = record["likelihood"]
     assert lk["kind"] == "rendered" and lk["n_views"] == len(json.loads((twin / "sequence.json").read_text())["views"])
+    # the scale's reference is the best-fitting design point: on a twin of other parameters, not the
+    # identified ones, and nearer the truth
+    assert not lk["reference_is_map"]
+    assert abs(lk["reference"]["log10_k_shift"] - TRUE_SHIFT) < abs(TRUE_SHIFT), lk["reference"]
+    assert np.mean(lk["reference_loss_per_frame"]) < np.mean(lk["map_loss_per_frame"])
     prof = lk["profile_log10_k_shift"]
     assert prof["+0.25"] > prof["+0"] and prof["+0.25"] > prof["-0.5"]  # the truth (+0.2) is nearer +0.25
     assert np.all(np.diff(lk["discrepancy_per_frame"]) >= -1e-12)

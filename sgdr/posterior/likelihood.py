@@ -113,6 +113,7 @@ class RenderedImages:
         self.n_views = len(seq.cameras)
         self.calls = 0  # rollouts rendered (the cost)
         self.unstable = 0
+        self._memo: dict[bytes, np.ndarray] = {}  # θ -> [F, V]: a θ evaluated twice is rendered once
 
     def values(self, thetas: np.ndarray) -> dict:
         """The scorer's candidate values of θ [S, D]."""
@@ -125,15 +126,34 @@ class RenderedImages:
         return out
 
     def __call__(self, thetas: np.ndarray, chunk: int = 32) -> np.ndarray:
-        """[S, F, V] losses, NaN rows for unstable rollouts; `chunk` samples per batched call."""
+        """[S, F, V] losses, NaN rows for unstable rollouts; `chunk` samples per batched call. A θ
+        already evaluated is not rendered again (the design is scored once to choose the
+        likelihood's reference, `reference_index`, and again by the sampler)."""
         thetas = np.atleast_2d(np.asarray(thetas, float))
-        parts = [
-            self.scorer.per_image(self.values(thetas[i : i + chunk]), retry=True) for i in range(0, len(thetas), chunk)
-        ]
-        out = np.concatenate(parts) if parts else np.zeros((0, len(self.frames), self.n_views))
-        self.calls += len(thetas)
-        self.unstable += int(np.sum(~np.isfinite(out.reshape(len(out), -1)).any(axis=1)))
-        return out
+        keys = [t.tobytes() for t in thetas]
+        todo = list({k: i for i, k in reversed(list(enumerate(keys))) if k not in self._memo}.values())
+        new = thetas[todo]
+        parts = [self.scorer.per_image(self.values(new[i : i + chunk]), retry=True) for i in range(0, len(new), chunk)]
+        for i, row in zip(todo, np.concatenate(parts) if parts else []):
+            self._memo[keys[i]] = row
+        self.calls += len(new)
+        self.unstable += sum(not np.isfinite(self._memo[keys[i]]).all() for i in todo)
+        if not keys:
+            return np.zeros((0, len(self.frames), self.n_views))
+        return np.stack([self._memo[k] for k in keys])
+
+
+def reference_index(losses: np.ndarray) -> int:
+    """The best-fitting of evaluated samples' image losses [S, F, V]: the lowest mean over the
+    view-frames among the stable ones. The likelihood's scale is that sample's misfit (the
+    maximum-likelihood noise of the evaluated points): on the run's own sequence usually the
+    identified parameters themselves; on another sequence (a twin rendered with other parameters)
+    the identified parameters' misfit holds the difference of the parameters, not the noise."""
+    x = np.asarray(losses, float).reshape(len(losses), -1)
+    mean = np.where(np.isfinite(x).all(axis=1), x.mean(axis=1), np.inf)
+    if not np.isfinite(mean).any():
+        raise ValueError("posterior: every evaluated sample's rollout is unstable")
+    return int(np.argmin(mean))
 
 
 @dataclass
@@ -142,8 +162,9 @@ class RenderedLikelihood:
 
     One view-frame is one observation (the tempering: the pixels of one image are far from
     independent, so counting them would sharpen the posterior by the pixel count). Its scale
-    s_f = noise + discrepancy_f splits the identified asset's (the MAP's) own misfit m_f (mean
-    over the views of frame f) into
+    s_f = noise + discrepancy_f splits the reference's misfit m_f (mean over the views of frame f;
+    the reference is the best-fitting evaluated sample, `reference_index`: the identified asset
+    on its own sequence) into
       noise          min_f m_f, floored at `floor`: what no physical parameter removes (the
                      appearance fit and the image noise; the frames before the object has moved
                      much show it alone);

@@ -34,7 +34,7 @@ from sgdr.evaluate.score import strict_json
 from sgdr.observe.silhouette import CentreMap, discrepancy, observation
 from sgdr.physics import Ground
 from sgdr.posterior import predictive as pp
-from sgdr.posterior.likelihood import RenderedImages, RenderedLikelihood, SilhouetteLikelihood
+from sgdr.posterior.likelihood import RenderedImages, RenderedLikelihood, SilhouetteLikelihood, reference_index
 from sgdr.posterior.rollouts import ROLLOUTS
 from sgdr.posterior.sample import LogProbability, Problem, diagnose, headline, kept_samples, run_ensembles
 from sgdr.posterior.surrogate import design, sample_with_surrogate
@@ -67,16 +67,18 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     rollout_all = lambda s: rollout(*common, s, ground, n_all, 1.0 / asset.fps, asset.n_substeps, asset.physics)  # noqa: E731
 
     problem = Problem.from_config(asset, pc)
+    start = None
+    if pc.sampler == "surrogate":
+        start = design(problem, search_candidates(run_dir, asset, problem), pc.surrogate.n_initial,
+                       pc.surrogate.n_sobol, cfg.seed)  # fmt: skip
     if pc.likelihood == "rendered":
-        log_prob, _, like_record = _rendered(cfg, run_dir, asset, seq, problem)
+        log_prob, _, like_record = _rendered(cfg, run_dir, asset, seq, problem, start)
     else:
         log_prob, _, like_record = _silhouette(cfg, asset, seq, problem, rollout_fit, asset_dir)
     run_chains = lambda lp, steps: run_ensembles(lp, problem, pc.n_walkers, steps, pc.n_ensembles, pc.init_ball,  # noqa: E731
                                                  seed=cfg.seed, progress=progress, move=pc.moves, space=pc.space)  # fmt: skip
     surrogate = None
     if pc.sampler == "surrogate":
-        start = design(problem, search_candidates(run_dir, asset, problem), pc.surrogate.n_initial,
-                       pc.surrogate.n_sobol, cfg.seed)  # fmt: skip
         chains, log_probs, acceptance, surrogate = sample_with_surrogate(
             log_prob, problem, start, pc.surrogate, lambda lp: run_chains(lp, pc.surrogate.chain_steps), cfg.seed,
             progress,
@@ -187,9 +189,11 @@ class RenderedLogProbability(LogProbability):
         return self.images(thetas)
 
 
-def _rendered(cfg, run_dir: Path, asset, seq, problem):
+def _rendered(cfg, run_dir: Path, asset, seq, problem, design_thetas=None):
     """(log_prob, likelihood, the record's likelihood section) of the rendered likelihood: the
-    identification's image loss at posterior.image_scale (0: the run's own search scale)."""
+    identification's image loss at posterior.image_scale (0: the run's own search scale). Its
+    scale is the misfit of the best-fitting of the MAP and `design_thetas` (the surrogate's first
+    design, evaluated here once: the sampler's evaluation of it is not rendered again)."""
     pc = cfg.posterior
     scale = int(pc.image_scale) or int(((_dynamics(run_dir).get("search") or {}).get("image_scale")) or 1)
     images = RenderedImages(asset, seq, problem, cfg.render, cfg.recon.lambda_dssim, scale,
@@ -197,7 +201,12 @@ def _rendered(cfg, run_dir: Path, asset, seq, problem):
     map_losses = images(problem.map_theta[None])
     if not np.all(np.isfinite(map_losses)):
         raise RuntimeError(f"{asset.root}: the identified parameters' rollout is unstable")
-    likelihood = RenderedLikelihood.at_map(map_losses[0], pc.loss_floor, pc.temperature)
+    evaluated = (
+        problem.map_theta[None] if design_thetas is None else np.concatenate([problem.map_theta[None], design_thetas])
+    )
+    losses = images(evaluated)
+    ref = reference_index(losses)
+    likelihood = RenderedLikelihood.at_map(losses[ref], pc.loss_floor, pc.temperature)
     log_prob = RenderedLogProbability(problem, images, likelihood)
     profile = {}
     if "log10_k_shift" in problem.names:
@@ -219,6 +228,10 @@ def _rendered(cfg, run_dir: Path, asset, seq, problem):
         "noise": likelihood.noise,
         "discrepancy_per_frame": likelihood.discrepancy.tolist(),
         "map_loss_per_frame": map_losses[0].mean(axis=1).tolist(),
+        # the scale's reference: the best-fitting evaluated sample (the MAP unless a design point fits better)
+        "reference": {n: float(t) for n, t in zip(problem.names, evaluated[ref])},
+        "reference_is_map": bool(np.array_equal(evaluated[ref], problem.map_theta)),
+        "reference_loss_per_frame": losses[ref].mean(axis=1).tolist(),
         "temperature": float(pc.temperature),
         "profile_log10_k_shift": profile or None,
     }

@@ -230,7 +230,7 @@ def _rendered(cfg, run_dir: Path, asset, seq, problem, design_thetas=None):
         "map_loss_per_frame": map_losses[0].mean(axis=1).tolist(),
         # the scale's reference: the best-fitting evaluated sample (the MAP unless a design point fits better)
         "reference": {n: float(t) for n, t in zip(problem.names, evaluated[ref])},
-        "reference_is_map": bool(np.array_equal(evaluated[ref], problem.map_theta)),
+        "reference_is_map": bool(np.allclose(evaluated[ref], problem.map_theta, rtol=0.0, atol=1e-6)),
         "reference_loss_per_frame": losses[ref].mean(axis=1).tolist(),
         "temperature": float(pc.temperature),
         "profile_log10_k_shift": profile or None,

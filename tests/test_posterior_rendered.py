@@ -1,6 +1,8 @@
 """The posterior's rendered likelihood, its surrogate sampler and the forecast's discrepancy ball
 (issue 36): each on a case whose answer is known without the pipeline."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -192,3 +194,17 @@ def test_a_rough_likelihood_is_sampled_smoothed_and_the_roughness_is_measured():
     assert 0.7 < record.rounds[-1]["roughness_nats"] < 4.0  # the ripples' RMS is 1.5 nats
     pooled = chains[:, chains.shape[1] // 2 :].reshape(-1, 2)
     assert np.allclose(pooled.mean(axis=0), mean, atol=0.75 * sd)  # the ripples move it a little
+
+
+def test_only_a_sequence_other_than_the_runs_own_is_searched_anew(tmp_path):
+    """The design's candidates: the run's own population for its own sequence (RUN.json), a new
+    global search for any other (a twin); a folder that is no run is never its own."""
+    from sgdr.posterior.run import _own_sequence
+
+    run, seq, twin = tmp_path / "run", tmp_path / "data" / "torus", tmp_path / "twin"
+    for d in (run, seq, twin):
+        d.mkdir(parents=True)
+    (run / "RUN.json").write_text(json.dumps({"sequence": str(tmp_path / "data" / ".." / "data" / "torus")}))
+    assert _own_sequence(run, seq)
+    assert not _own_sequence(run, twin)
+    assert not _own_sequence(tmp_path / "no_run", seq)

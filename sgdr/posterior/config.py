@@ -85,6 +85,7 @@ SURROGATE_CHECKS = {
     "chain_steps": at_least(100),
     "clip": positive(),
     "inside_min": between(0.0, 1.0, lo_open=True),
+    "search_other_sequence": choice((True, False)),
 }
 
 CHECKS: dict[str, Check] = {

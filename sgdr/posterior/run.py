@@ -39,7 +39,7 @@ from sgdr.posterior.rollouts import ROLLOUTS
 from sgdr.posterior.sample import LogProbability, Problem, diagnose, headline, kept_samples, run_ensembles
 from sgdr.posterior.surrogate import design, sample_with_surrogate
 from sgdr.report.html import add_section
-from sgdr.run_folder import run_asset_and_sequence
+from sgdr.run_folder import run_asset_and_sequence, run_sequence
 
 log = logging.getLogger(__name__)
 
@@ -67,12 +67,16 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     rollout_all = lambda s: rollout(*common, s, ground, n_all, 1.0 / asset.fps, asset.n_substeps, asset.physics)  # noqa: E731
 
     problem = Problem.from_config(asset, pc)
-    start = None
+    images = _rendered_images(cfg, run_dir, asset, seq, problem) if pc.likelihood == "rendered" else None
+    start, design_search = None, None
     if pc.sampler == "surrogate":
-        start = design(problem, search_candidates(run_dir, asset, problem), pc.surrogate.n_initial,
+        search = _dynamics(run_dir).get("search") or {}
+        if search.get("candidates") and pc.surrogate.search_other_sequence and not _own_sequence(run_dir, seq_dir):
+            search = design_search = search_sequence(cfg, asset, seq, images, progress)
+        start = design(problem, candidates_as_theta(search, asset, problem), pc.surrogate.n_initial,
                        pc.surrogate.n_sobol, cfg.seed)  # fmt: skip
     if pc.likelihood == "rendered":
-        log_prob, _, like_record = _rendered(cfg, run_dir, asset, seq, problem, start)
+        log_prob, _, like_record = _rendered(cfg, run_dir, asset, seq, problem, start, images)
     else:
         log_prob, _, like_record = _silhouette(cfg, asset, seq, problem, rollout_fit, asset_dir)
     run_chains = lambda lp, steps: run_ensembles(lp, problem, pc.n_walkers, steps, pc.n_ensembles, pc.init_ball,  # noqa: E731
@@ -141,6 +145,11 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
             "space": pc.space,
             "rollout": pc.rollout,
             "surrogate": surrogate.to_json() if surrogate is not None else None,
+            # the global search on this sequence that gave the design's candidates (a sequence other
+            # than the run's own; posterior.surrogate.search_other_sequence), else None: the run's own
+            "design_search": None
+            if design_search is None
+            else {k: design_search[k] for k in ("names", "best", "best_loss", "n_evaluations", "image_scale")},
         },
         "truth": truth or None,
         "notes": notes,
@@ -189,15 +198,52 @@ class RenderedLogProbability(LogProbability):
         return self.images(thetas)
 
 
-def _rendered(cfg, run_dir: Path, asset, seq, problem, design_thetas=None):
+def _rendered_images(cfg, run_dir: Path, asset, seq, problem) -> RenderedImages:
+    """The rendered likelihood's images at posterior.image_scale (0: the run's own search scale)."""
+    pc = cfg.posterior
+    scale = int(pc.image_scale) or int(((_dynamics(run_dir).get("search") or {}).get("image_scale")) or 1)
+    return RenderedImages(asset, seq, problem, cfg.render, cfg.recon.lambda_dssim, scale,
+                          cfg.recon.search.images_per_call)  # fmt: skip
+
+
+def _own_sequence(run_dir: Path, seq_dir: Path) -> bool:
+    try:
+        return Path(seq_dir).resolve() == run_sequence(run_dir).resolve()
+    except (FileNotFoundError, KeyError):
+        return False
+
+
+def search_sequence(cfg, asset, seq, images: RenderedImages | None, progress: bool = False) -> dict:
+    """The identification's global stage (recon.search.*: CMA-ES over its parameters, every
+    candidate's open-loop rollout rendered and scored) on `seq` with the asset's model and
+    appearance: the design's candidates for a sequence the run did not see (e.g. a twin); the
+    search record's JSON ({"names", "candidates", "losses", ...})."""
+    from sgdr.identify.global_search import REGION_START, global_search, search_space
+
+    if images is None or images.scorer.image_scale != int(cfg.recon.search.image_scale):
+        images = RenderedImages(asset, seq, None, cfg.render, cfg.recon.lambda_dssim, cfg.recon.search.image_scale,
+                                cfg.recon.search.images_per_call)  # fmt: skip
+    model, _ = asset.build()
+    per_anchor = np.ndim(asset.values["log10_k"]) > 0 and np.size(asset.values["log10_k"]) > 1
+    space = search_space(cfg.recon.search, asset.physics, model, 1.0 / asset.fps, int(asset.n_substeps), per_anchor)
+    # from the asset's own values (the regions from the identification's start), else the box's centre
+    centre = dict(zip(space.names, 0.5 * (space.lo + space.hi)))
+    init = {n: REGION_START.get(n, float(np.mean(asset.values.get(n, centre[n])))) for n in space.names}
+    t0 = time.time()
+    found = global_search(images.scorer, space, init, cfg.recon.search, cfg.seed, progress)
+    log.info("posterior: global search on %s: %d candidates in %.0f s, best %s (loss %.5f)", seq.root,
+             len(found.losses), time.time() - t0, found.best, found.best_loss)  # fmt: skip
+    return found.to_json()
+
+
+def _rendered(cfg, run_dir: Path, asset, seq, problem, design_thetas=None, images=None):
     """(log_prob, likelihood, the record's likelihood section) of the rendered likelihood: the
     identification's image loss at posterior.image_scale (0: the run's own search scale). Its
     scale is the misfit of the best-fitting of the MAP and `design_thetas` (the surrogate's first
     design, evaluated here once: the sampler's evaluation of it is not rendered again)."""
     pc = cfg.posterior
-    scale = int(pc.image_scale) or int(((_dynamics(run_dir).get("search") or {}).get("image_scale")) or 1)
-    images = RenderedImages(asset, seq, problem, cfg.render, cfg.recon.lambda_dssim, scale,
-                            cfg.recon.search.images_per_call)  # fmt: skip
+    images = images or _rendered_images(cfg, run_dir, asset, seq, problem)
+    scale = images.scorer.image_scale
     map_losses = images(problem.map_theta[None])
     if not np.all(np.isfinite(map_losses)):
         raise RuntimeError(f"{asset.root}: the identified parameters' rollout is unstable")
@@ -274,10 +320,14 @@ def _dynamics(run_dir: Path) -> dict:
 
 
 def search_candidates(run_dir: Path, asset, problem) -> np.ndarray:
-    """[N, D] the run's global-stage candidates (dynamics.json `search`, best first) as θ: the
-    level as a shift of the asset's field mean, parameters the search did not vary at the MAP;
-    empty when the run did not search."""
-    search = _dynamics(run_dir).get("search") or {}
+    """[N, D] the run's global-stage candidates (dynamics.json `search`) as θ (`candidates_as_theta`)."""
+    return candidates_as_theta(_dynamics(run_dir).get("search") or {}, asset, problem)
+
+
+def candidates_as_theta(search: dict, asset, problem) -> np.ndarray:
+    """[N, D] a global search's candidates (its record: names, candidates, losses; best first) as
+    θ: the level as a shift of the asset's field mean, parameters the search did not vary at the
+    MAP; empty when there was no search."""
     if not search.get("candidates"):
         return np.zeros((0, len(problem.names)))
     names = list(search["names"])

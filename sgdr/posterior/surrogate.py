@@ -59,6 +59,10 @@ class SurrogateConfig:
     chain_steps: int = 3000  # steps of the ensembles on the surrogate (cheap)
     clip: float = 60.0  # nats below the best at which log L is clipped for the GP
     inside_min: float = 0.9  # share of the check draws whose true log L lies in the surrogate's 95% interval
+    # a sequence other than the run's own (posterior.sequence, e.g. a twin) gets its own global search
+    # (the identification's stage, recon.search.*) for the design's candidates: the run's population
+    # describes the run's sequence only; False: the run's population for any sequence
+    search_other_sequence: bool = True
 
 
 @dataclass

@@ -114,13 +114,23 @@ class GPSurrogate:
         # the nugget: the rendered loss is rough at the scale of a few percent of a decade (a contact or
         # a bounce shifts by a substep), several nats; the GP treats that roughness as noise and its
         # mean is the smoothed log L (the noise level is fitted, up to (0.5 clip)^2)
-        kernel = ConstantKernel(0.1, (1e-4, 10.0)) * RBF(np.full(d, 0.2), (1e-3, 20.0)) + WhiteKernel(
-            1e-5, (1e-10, 0.25)
-        )
-        self.gp = GaussianProcessRegressor(kernel, normalize_y=False, n_restarts_optimizer=3, random_state=self.seed)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # hyper-parameters at a bound: the fit still stands
-            self.gp.fit(x, target)
+        # The hyper-parameters' likelihood is multimodal: from a smooth start (nugget 1e-5) the optimiser
+        # and its random restarts can all end interpolating the roughness (nugget at its bound, short
+        # length scales) far below the rough optimum (measured on the small torus's 209 evaluations:
+        # log marginal likelihood -19 at nugget 0 against 158 at 4.2 nats, seeds 0 and 4 of 5). So the
+        # fit starts from a smooth and from a rough nugget and keeps the higher marginal likelihood.
+        best = None
+        for nugget in (1e-5, 1e-2):
+            kernel = ConstantKernel(0.1, (1e-4, 10.0)) * RBF(np.full(d, 0.2), (1e-3, 20.0)) + WhiteKernel(
+                nugget, (1e-10, 0.25)
+            )
+            gp = GaussianProcessRegressor(kernel, normalize_y=False, n_restarts_optimizer=3, random_state=self.seed)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # hyper-parameters at a bound: the fit still stands
+                gp.fit(x, target)
+            if best is None or gp.log_marginal_likelihood_value_ > best.log_marginal_likelihood_value_:
+                best = gp
+        self.gp = best
         return self
 
     def predict(self, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

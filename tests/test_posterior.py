@@ -321,7 +321,7 @@ def test_tiny_posterior_on_a_twin(tiny):
     assert section.index("Not converged") < section.index("<table>")
     assert "5%" in section and "R-hat" in section and "uniform" in section and "<video" in section
     assert on_disk["sampler"] == {"kind": "emcee", "moves": "de", "space": "logit", "rollout": "batched",
-                                  "surrogate": None}  # fmt: skip
+                                  "surrogate": None, "design_search": None}  # fmt: skip
     assert "differential-evolution moves" in section
     # logged into the run's MLflow run
     from mlflow.tracking import MlflowClient

@@ -319,11 +319,6 @@ def _dynamics(run_dir: Path) -> dict:
     return json.loads(path.read_text()) if path.exists() else {}
 
 
-def search_candidates(run_dir: Path, asset, problem) -> np.ndarray:
-    """[N, D] the run's global-stage candidates (dynamics.json `search`) as θ (`candidates_as_theta`)."""
-    return candidates_as_theta(_dynamics(run_dir).get("search") or {}, asset, problem)
-
-
 def candidates_as_theta(search: dict, asset, problem) -> np.ndarray:
     """[N, D] a global search's candidates (its record: names, candidates, losses; best first) as
     θ: the level as a shift of the asset's field mean, parameters the search did not vary at the

@@ -51,15 +51,17 @@ def diagnose(cfg: DictConfig) -> None:
     summary = {
         "cause": record["cause"],
         "candidates": {
-            n: {k: v[k] for k in ("value", "interval", "held_out_loss", "gain", "future_gain", "decision")}
+            n: {k: v[k] for k in ("value", "interval", "held_out_loss", "gain", "time_gain", "future_gain", "decision")}
             for n, v in record["candidates"].items()
         },
+        "judge": record["judge"],
         "base_held_out_loss": record["base"]["d_held_out"],
         "base_refit": None
         if record.get("rebase") is None
         else {
             "values": {n: st["values"] for n, st in record["rebase"]["steps"].items() if st["kept"]},
             "held_out_gain": record["rebase"]["held_out_gain"],
+            "time_gain": record["rebase"]["time_gain"],
             "future_gain": record["rebase"]["future_gain"],
         },
         "v0_refit": record["v0_refit"],

@@ -231,3 +231,14 @@ def test_the_evaluator_simulates_the_fit_frames_for_a_search_and_the_rest_when_a
     assert ev.positions({"air_drag": 1.0}).shape[0] == 30 and calls == [20, 30]
     assert ev.d({"air_drag": 6.0}, fit) == float("inf") and ev.d({"air_drag": 6.0}, future) == float("inf")
     assert calls == [20, 30, 20]
+
+
+def test_the_held_out_time_is_a_share_of_the_fit_frames_with_two_left_to_fit():
+    from sgdr.discrepancy.run import held_out_time_frames
+
+    assert held_out_time_frames(20, 0.25, "seq") == 5  # small: frames 15-19 held out, 1-14 fitted
+    assert held_out_time_frames(8, 0.25, "seq") == 2  # tiny: 6-7 held out, 1-5 fitted
+    assert held_out_time_frames(20, 0.0, "seq") == 0
+    assert held_out_time_frames(4, 0.01, "seq") == 1  # at least one frame
+    with pytest.raises(ValueError, match="seq.*diagnose.held_out_time=0.5"):
+        held_out_time_frames(4, 0.5, "seq")

@@ -137,6 +137,7 @@ def _rec(id_, expected, cause, gains):
         "effect": id_.split("-")[1],
         "candidates": cands,
         "base_refit": {"values": {}, "held_out_gain": 0.0, "future_gain": 0.0},
+        "time_frames": [15, 16, 17, 18, 19],
     }
 
 
@@ -341,3 +342,68 @@ def test_a_ground_named_through_the_tilt_counts_the_tilts_gain(monkeypatch):
     s = S.summary({"t-ground_tilt": rec})
     assert s["injected_named_share"] == 1.0 and s["named_gain_share_ge_0.3"] == 1.0
     assert s["per_effect"]["ground_tilt"]["gains"] == [0.7]
+
+
+def test_each_judge_decides_on_its_own_gain():
+    """`diagnose.judge`: "views" decides on the held-out views, "time" on the held-out time,
+    "both" on the time gain of the candidates whose view gain passes too; gravity and drag (the
+    free-flight window) are decided on their window's views under every judge."""
+    from sgdr.discrepancy.decision import decision_gains
+
+    cands = {
+        "ground_plane": {"gain": 0.05, "time_gain": 0.6, "window": "fit"},
+        "plasticity": {"gain": 0.3, "time_gain": 0.1, "window": "fit"},
+        "gravity": {"gain": 0.4, "time_gain": -2.0, "window": "free_flight"},
+        "contact": {"gain": 0.5, "time_gain": None, "window": "fit"},
+    }
+    views = {"ground_plane": 0.2, "plasticity": 0.25, "gravity": 0.15, "contact": 0.1}
+    time = {n: 0.3 for n in cands}
+    g, t = decision_gains(cands, "views", views, time)
+    assert g == {n: c["gain"] for n, c in cands.items()} and t == views
+    g, t = decision_gains(cands, "time", views, time)
+    assert g["ground_plane"] == 0.6 and g["plasticity"] == 0.1 and g["gravity"] == 0.4
+    assert g["contact"] == -np.inf  # no held-out time: cannot pass
+    assert t["ground_plane"] == 0.3 and t["gravity"] == 0.15
+    g, _ = decision_gains(cands, "both", views, time)
+    assert g["ground_plane"] == -np.inf  # its view gain is below its threshold
+    assert g["plasticity"] == 0.1 and g["gravity"] == 0.4
+    with pytest.raises(ValueError, match="diagnose.judge"):
+        decision_gains(cands, "future", views, time)
+
+
+def test_judges_are_compared_with_thresholds_from_the_other_objects_nulls(monkeypatch):
+    """The thresholds follow the nulls' rule (1.25 x the largest null gain, up to 0.05, at least
+    0.1); each object's cases are decided with the other objects' nulls only."""
+    assert S.null_thresholds([_rec("a-none", "none", "none", {"ground_plane": 0.2, "gravity": 0.01})], "gain") == {
+        "ground_plane": 0.25,
+        "gravity": 0.1,
+    }
+    monkeypatch.setattr(S, "method_thresholds", lambda method: {})
+
+    def rec(obj, effect, expected, view, time):
+        r = _rec(f"{obj}-{effect}", expected, "none", {"ground_plane": view})
+        r["candidates"]["ground_plane"]["time_gain"] = time
+        return {**r, "object": obj, "method": "spring_gaus"}
+
+    results = {
+        r["id"]: r
+        for r in (
+            rec("apple", "none", "none", 0.3, 0.1),  # a null whose view gain is large, its time gain small
+            rec("banana", "none", "none", 0.1, 0.12),
+            rec("cream", "none", "none", 0.05, 0.08),
+            rec("apple", "ground_offset", "ground_plane", 0.2, 0.5),
+            rec("banana", "ground_offset", "ground_plane", 0.35, 0.6),
+        )
+    }
+    c = S.judge_comparison(results)
+    # views: apple's null is decided with banana's and cream's nulls (threshold 0.15): named, a false cause
+    assert c["views"]["null_none_share"] == pytest.approx(2 / 3)
+    # banana's offset (0.35) against apple's and cream's nulls (0.3 * 1.25 = 0.375): missed; apple's 0.2
+    # against banana's and cream's (0.15): named
+    assert c["views"]["injected_named_share"] == 0.5
+    assert c["time"]["null_none_share"] == 1.0 and c["time"]["injected_named_share"] == 1.0
+    assert c["time"]["per_effect"] == {"ground_offset": "2/2"}
+    assert c["time"]["thresholds"]["time"] == {"ground_plane": 0.15}
+    old = {**rec("cream", "ground_offset", "ground_plane", 0.9, 0.9)}
+    del old["time_frames"]  # fitted on the whole window: not counted
+    assert S.judge_comparison({**results, "old": old})["time"]["injected_cases"] == 2

@@ -40,7 +40,7 @@ from evaluation import ROOT
 from sgdr.config import compose
 from sgdr.discrepancy.candidates import CANDIDATES
 from sgdr.discrepancy.config import DiagnoseConfig
-from sgdr.discrepancy.decision import decide, rivals, settle_mimics
+from sgdr.discrepancy.decision import decide, decision_gains, rivals, settle_mimics
 from sgdr.synth.objects import OBJECTS as REGISTRY
 
 NOMINAL_GRAVITY = 9.8
@@ -249,6 +249,7 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
                 "value",
                 "interval",
                 "gain",
+                "time_gain",
                 "future_gain",
                 "held_out_loss",
                 "window",
@@ -261,12 +262,20 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
     for n, c in diag["candidates"].items():  # judged at the injected truth (sgdr.discrepancy.truth)
         if c.get("truth"):
             rec["candidates"][n]["truth_gain"] = c["truth"]["gain"]
+            rec["candidates"][n]["truth_time_gain"] = c["truth"].get("time_gain")
             rec["candidates"][n]["truth_values"] = c["truth"]["values"]
     rec["base"] = diag["base"]
     if diag.get("rebase"):
         rb = diag["rebase"]
         kept = {n: st["values"] for n, st in rb["steps"].items() if st["kept"]}
-        rec["base_refit"] = {"values": kept, "held_out_gain": rb["held_out_gain"], "future_gain": rb["future_gain"]}
+        rec["base_refit"] = {
+            "values": kept,
+            "held_out_gain": rb["held_out_gain"],
+            "time_gain": rb.get("time_gain"),
+            "future_gain": rb["future_gain"],
+        }
+    rec["judge"] = diag.get("judge", "views")
+    rec["time_frames"] = diag.get("time_frames", [])
     rec["diagnose_seconds"] = diag["seconds"]
     if (run_dir / "metrics.json").exists():
         m = json.loads((run_dir / "metrics.json").read_text())
@@ -348,20 +357,46 @@ def method_thresholds(method: str) -> dict:
     return _THRESHOLDS[method]
 
 
-def redecide(rec: dict, thresholds: dict | None = None) -> str:
+_DECISION: dict = {}
+
+
+def method_decision(method: str) -> dict:
+    """`diagnose.judge` and the held-out-time thresholds (`min_time_gain_by_candidate`,
+    `min_time_gain`) as the config composes them for `method`; cached per method."""
+    if method not in _DECISION:
+        d = compose([f"method={method}"]).diagnose
+        _DECISION[method] = {
+            "judge": str(d.judge),
+            "time": dict(d.min_time_gain_by_candidate),
+            "min_time_gain": float(d.min_time_gain),
+        }
+    return _DECISION[method]
+
+
+def redecide(rec: dict, thresholds: dict | None = None, judge: str | None = None, time: dict | None = None) -> str:
     """The cause a case's recorded gains name under `thresholds` (default: the current
-    `diagnose.min_gain_by_candidate` of the record's method), so that the bars follow a
-    recalibration without rerunning."""
-    return redecide_with_rivals(rec, thresholds)[0]
+    `diagnose.min_gain_by_candidate` of the record's method), `judge` and the held-out-time
+    thresholds `time` (default: the method's `diagnose.judge` and `min_time_gain_by_candidate`),
+    so that the bars follow a recalibration without rerunning."""
+    return redecide_with_rivals(rec, thresholds, judge, time)[0]
 
 
-def redecide_with_rivals(rec: dict, thresholds: dict | None = None) -> tuple[str, list[str]]:
+def redecide_with_rivals(
+    rec: dict, thresholds: dict | None = None, judge: str | None = None, time: dict | None = None
+) -> tuple[str, list[str]]:
     """`redecide`'s cause and the other causes that fit as well (`sgdr.discrepancy.run.rivals`,
     the default `diagnose.mimic_margin`), after the whole fit window settles a tie between
-    free-flight mimics (`settle_mimics`; records without `fit_window_gain` stay tied)."""
-    thresholds = thresholds or method_thresholds(rec.get("method", "spring_gaus"))
-    gains = {n: c["gain"] for n, c in rec["candidates"].items()}
-    per = {n: thresholds.get(n, DiagnoseConfig.min_gain) for n in gains}
+    free-flight mimics (`settle_mimics`; records without `fit_window_gain` stay tied). A record
+    without held-out-time gains can only be decided on its views."""
+    method = rec.get("method", "spring_gaus")
+    thresholds = thresholds or method_thresholds(method)
+    decision = method_decision(method)
+    judge = judge or decision["judge"]
+    time = decision["time"] if time is None else time
+    names = list(rec["candidates"])
+    views = {n: thresholds.get(n, DiagnoseConfig.min_gain) for n in names}
+    times = {n: time.get(n, decision["min_time_gain"]) for n in names}
+    gains, per = decision_gains(rec["candidates"], judge, views, times)
     free = [n for n, c in rec["candidates"].items() if c.get("window") == "free_flight"]
     best = decide(gains, per, free)
     causes = {n: CANDIDATES.get_named(n).cause for n in gains}
@@ -369,6 +404,59 @@ def redecide_with_rivals(rec: dict, thresholds: dict | None = None) -> tuple[str
     window = {n: c.get("fit_window_gain") for n, c in rec["candidates"].items()}
     best, rival = settle_mimics(best, rival, window, DiagnoseConfig.mimic_window_margin, per)
     return ("none" if best is None else causes[best]), [causes[n] for n in rival]
+
+
+JUDGES = ("views", "time", "both")
+
+
+def null_thresholds(nulls: list[dict], key: str, factor: float = 1.25, least: float = 0.1) -> dict:
+    """Thresholds calibrated on null records as docs/discrepancy.md states the rule: per
+    candidate, `factor` x its largest `key` gain ("gain": held-out views, "time_gain": held-out
+    time) over the nulls, rounded up to 0.05, at least `least`."""
+    out = {}
+    for r in nulls:
+        for n, c in r["candidates"].items():
+            g = c.get(key)
+            if g is not None and np.isfinite(g):
+                out[n] = max(out.get(n, -np.inf), float(g))
+    return {n: max(least, round(float(np.ceil(round(factor * g / 0.05, 9))) * 0.05, 2)) for n, g in out.items()}
+
+
+def judge_comparison(results: dict) -> dict:
+    """Each way of deciding (`JUDGES`) with thresholds calibrated on the nulls, scored
+    leave-one-object-out: an object's cases are decided with thresholds from the other objects'
+    nulls of the same base method (`null_thresholds`), so that no case is judged with thresholds
+    its own object set. Per judge: the share of nulls named `none`, the share of injected cases
+    named, per effect; and the thresholds from all nulls (what the config would carry). Counts
+    only records with held-out-time gains (`time_frames`)."""
+    ok = [r for r in results.values() if _current(r) and r.get("time_frames")]
+    out = {}
+    for judge in JUDGES:
+        null_none, named, per_effect = [], [], {}
+        for r in ok:
+            others = [
+                q for q in ok
+                if q["expected"] == "none" and q.get("object") != r.get("object") and q.get("method") == r.get("method")
+            ]  # fmt: skip
+            views = {**method_thresholds(r.get("method", "spring_gaus")), **null_thresholds(others, "gain")}
+            time = null_thresholds(others, "time_gain")
+            cause = redecide(r, views, judge, time)
+            if r["expected"] == "none":
+                null_none.append(cause == "none")
+            else:
+                named.append(cause == r["expected"])
+                e = per_effect.setdefault(r["effect"], [0, 0])
+                e[0], e[1] = e[0] + int(cause == r["expected"]), e[1] + 1
+        nulls = [r for r in ok if r["expected"] == "none"]
+        out[judge] = {
+            "null_cases": len(null_none),
+            "null_none_share": float(np.mean(null_none)) if null_none else None,
+            "injected_cases": len(named),
+            "injected_named_share": float(np.mean(named)) if named else None,
+            "per_effect": {k: f"{v[0]}/{v[1]}" for k, v in per_effect.items()},
+            "thresholds": {"views": null_thresholds(nulls, "gain"), "time": null_thresholds(nulls, "time_gain")},
+        }
+    return out
 
 
 def _decided(results: dict) -> list[dict]:
@@ -393,10 +481,11 @@ def _old_tilt(rec: dict) -> bool:
 
 
 def _current(rec: dict) -> bool:
-    """A finished case diagnosed with the base refit (records without `base_refit` predate it:
-    their gains are over the run's own fit, a different rule; they stay in the file, uncounted),
-    and, for a ground tilt, generated with the current tilt generator (`TILT_GENERATOR`)."""
-    return rec.get("status") == "ok" and "base_refit" in rec and not _old_tilt(rec)
+    """A finished case diagnosed with the base refit and the held-out time (records without
+    `base_refit` or `time_frames` predate them: their gains were fitted on the whole fit window,
+    over the per-anchor base of that time; they stay in the file, uncounted), and, for a ground
+    tilt, generated with the current tilt generator (`TILT_GENERATOR`)."""
+    return rec.get("status") == "ok" and "base_refit" in rec and "time_frames" in rec and not _old_tilt(rec)
 
 
 def summary(results: dict) -> dict:
@@ -451,6 +540,11 @@ def summary(results: dict) -> dict:
         "before_base_refit": sorted(
             r["id"] for r in results.values() if r.get("status") == "ok" and "base_refit" not in r
         ),
+        "before_held_out_time": sorted(
+            r["id"]
+            for r in results.values()
+            if r.get("status") == "ok" and "base_refit" in r and "time_frames" not in r
+        ),
         "tilt_before_plane_frame": sorted(
             r["id"] for r in results.values() if r.get("status") == "ok" and _old_tilt(r)
         ),
@@ -488,6 +582,8 @@ def markdown(results: dict) -> str:
         for n in names:
             c = r["candidates"].get(n)
             cell = "-" if c is None else f"{c['gain']:.3f} ({c['value']:.3g})"
+            if c is not None and c.get("time_gain") is not None:
+                cell += f" time {c['time_gain']:.3f}"
             if c is not None and c.get("truth_gain") is not None:
                 cell += f" [truth {c['truth_gain']:.3f}]"
             cells.append(cell)
@@ -529,6 +625,7 @@ def main(argv=None) -> int:
     results = read_results(args.results)
     if args.summary:
         print(markdown(results))
+        print(json.dumps({"judges_leave_one_object_out": judge_comparison(results)}))
         print(json.dumps(summary(results)))
         return 0
     if args.effect_sizes:

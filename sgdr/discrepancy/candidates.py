@@ -257,22 +257,27 @@ class Fit:
     d_held_out: float  # held-out-views D at the fit
     d_future: float | None  # D over the future frames (all views), when the sequence has them
     evaluated: list = field(default_factory=list)  # [(variant, {param: value}, fitting D)] in search order
+    # D over the held-out time (the fit window's last frames, all views: the open-loop rollout of
+    # frames no fit saw), when the diagnosis holds them out (diagnose.held_out_time)
+    d_time: float | None = None
 
 
 class Evaluator:
     """D of the asset's rollouts with given physics settings and value replacements, on fitting /
-    held-out views and future frames; positions are cached per (settings, replacements).
+    held-out views, the held-out time (`obs_time`: the fit window's last frames, all views; None
+    when not held out) and future frames; positions are cached per (settings, replacements).
     score: (observation, positions [T, N_A, 3]) -> D [V, F] (`sgdr.discrepancy.measures`)."""
 
-    def __init__(self, asset, rollout, obs_fit, obs_held, obs_future, score):
+    def __init__(self, asset, rollout, obs_fit, obs_held, obs_future, score, obs_time=None):
         self.asset, self.rollout = asset, rollout
         self.values = dict(asset.values)  # the base's values and physics settings (`rebase` replaces them)
         self.settings: dict = {}
         self.obs_fit, self.obs_held, self.obs_future = obs_fit, obs_held, obs_future
+        self.obs_time = obs_time
         self.score = score
         self.model, _ = asset.build()
         self.ground = Ground(asset.ground_point, asset.ground_normal)
-        frames = [obs_fit.frames, obs_held.frames] + ([obs_future.frames] if obs_future is not None else [])
+        frames = [o.frames for o in (obs_fit, obs_held, obs_future, obs_time) if o is not None]
         self.n_frames = int(max(int(np.max(f)) for f in frames)) + 1
         self.cache: dict = {}
         self.scores: dict = {}
@@ -339,6 +344,10 @@ class Evaluator:
         d = self.per_view_frame(settings, obs, values)
         return float("inf") if d is None else float(np.sum(d))
 
+    def d_or_none(self, settings: dict, obs, values: dict | None = None) -> float | None:
+        """`d` on an optional observation (the future frames, the held-out time): None without it."""
+        return None if obs is None else self.d(settings, obs, values)
+
 
 def _search(objective, bounds: list, x0: np.ndarray, evaluations: int) -> np.ndarray:
     """The minimiser of `objective` within `bounds`: a bounded Brent search of at most
@@ -399,6 +408,7 @@ def fit_candidate(ev: Evaluator, cand: Candidate, ctx: Context, evaluations: int
         settings=settings,
         d_fit=ev.d(settings, ev.obs_fit, repl),
         d_held_out=ev.d(settings, ev.obs_held, repl),
-        d_future=ev.d(settings, ev.obs_future, repl) if ev.obs_future is not None else None,
+        d_future=ev.d_or_none(settings, ev.obs_future, repl),
         evaluated=evaluated,
+        d_time=ev.d_or_none(settings, ev.obs_time, repl),
     )

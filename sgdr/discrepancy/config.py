@@ -21,6 +21,10 @@ MIN_GAIN_BY_CANDIDATE = {
     "heterogeneous_stiffness": 0.2,
 }
 
+# The held-out-time gain each fit-window candidate needs (judge "time" or "both"); not yet
+# calibrated on the MPM nulls of the current base: min_time_gain for every candidate until then.
+MIN_TIME_GAIN_BY_CANDIDATE: dict = {}
+
 
 @dataclass
 class DiagnoseConfig:
@@ -58,6 +62,15 @@ class DiagnoseConfig:
     n_points: int = 200  # "points": bound Gaussian centres projected per view-frame (a fixed seeded subset)
     n_mask_points: int = 100  # "points": silhouette pixels sampled per view-frame (the coverage term)
     frame_stride: int = 1  # every frame_stride-th fit frame after frame 0
+    # the share of the fit frames after frame 0 held out at the window's end (at least one frame;
+    # 0 = none): the base and every candidate are fitted on the earlier frames and their open-loop
+    # rollouts scored on these, all views ("time_gain"); effects that act at and after contact show
+    # there, where held-out views of the fitted frames ask the base to explain the same motion twice
+    held_out_time: float = 0.25
+    # which gain names a cause: "views" (the held-out views of the fitted frames), "time" (the
+    # held-out time) or "both" (each at its own threshold, ranked by the time gain); the free-flight
+    # candidates (gravity, drag) are judged on their window's held-out views in every mode
+    judge: str = "views"
     evaluations: int = 16  # rollouts of the bounded 1-D search per candidate
     floor_margin: float = (
         0.05  # the room above the floor a gain is a share of is at least this x the floor (run.excess_gain)
@@ -66,6 +79,10 @@ class DiagnoseConfig:
     # per-candidate thresholds overriding min_gain (e.g. diagnose.min_gain_by_candidate.ground_tilt=0.5),
     # calibrated on the MPM null cases (docs/discrepancy.md)
     min_gain_by_candidate: dict = field(default_factory=lambda: dict(MIN_GAIN_BY_CANDIDATE))
+    # the held-out-time gain each candidate needs (judge "time" or "both"); min_time_gain for one
+    # not listed
+    min_time_gain: float = 0.1
+    min_time_gain_by_candidate: dict = field(default_factory=lambda: dict(MIN_TIME_GAIN_BY_CANDIDATE))
     # another cause whose gain is within this of the named one's is reported as fitting as well
     # (diagnosis.json "ambiguous_with"; run.rivals): mimics such as weaker gravity and air drag
     mimic_margin: float = 0.05
@@ -95,6 +112,10 @@ CHECKS = {
     "n_points": at_least(8),
     "n_mask_points": at_least(8),
     "frame_stride": at_least(1),
+    "held_out_time": between(0.0, 0.5),
+    "judge": choice(("views", "time", "both")),
+    "min_time_gain": between(0.0, 1.0),
+    "min_time_gain_by_candidate": dict_of(between(0.0, 1.0), keys=choice("sgdr.discrepancy.candidates:CANDIDATES")),
     "evaluations": at_least(4),
     "floor_margin": between(0.0, 1.0),
     "rollout": choice("sgdr.posterior.rollouts:ROLLOUTS"),

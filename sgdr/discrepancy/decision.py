@@ -28,6 +28,35 @@ def threshold(dc, name: str) -> float:
     return float((dc.min_gain_by_candidate or {}).get(name, dc.min_gain))
 
 
+def time_threshold(dc, name: str) -> float:
+    """The held-out-time gain candidate `name` needs (`diagnose.judge` "time" or "both"):
+    `diagnose.min_time_gain_by_candidate[name]`, else `diagnose.min_time_gain`."""
+    return float((dc.min_time_gain_by_candidate or {}).get(name, dc.min_time_gain))
+
+
+def decision_gains(candidates: dict, judge: str, views: dict, time: dict) -> tuple[dict, dict]:
+    """The gain each candidate is decided on and the threshold it must reach, under `judge`
+    (`diagnose.judge`): "views" its held-out-view gain against `views[name]`; "time" its
+    held-out-time gain ("time_gain") against `time[name]`; "both" the time gain against
+    `time[name]`, and only when its view gain reaches `views[name]` too (else -inf). A
+    free-flight candidate (window "free_flight") is decided on its window's held-out views in
+    every mode: the fall is a few frames, too short to hold out the last ones. A candidate without
+    a time gain (none held out) cannot pass under "time" or "both"."""
+    if judge not in ("views", "time", "both"):
+        raise ValueError(f"diagnose.judge={judge!r}: expected views, time or both")
+    gains, thresholds = {}, {}
+    for n, c in candidates.items():
+        if judge == "views" or c.get("window") == "free_flight":
+            gains[n], thresholds[n] = c["gain"], views[n]
+            continue
+        t = c.get("time_gain")
+        t = -float("inf") if t is None or not np.isfinite(t) else float(t)
+        if judge == "both" and not (c["gain"] is not None and np.isfinite(c["gain"]) and c["gain"] >= views[n]):
+            t = -float("inf")
+        gains[n], thresholds[n] = t, time[n]
+    return gains, thresholds
+
+
 def _choice_pool(gains: dict, thresholds: dict, first=()) -> list[str]:
     """The candidates a cause is chosen from: those at or above their own threshold, and of those
     only the ones in `first` (the free-flight candidates) when any of them passes."""

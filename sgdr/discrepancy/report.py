@@ -158,11 +158,21 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
         )
     rows = [
         [n, c["changes"], ", ".join(f"{k} = {_g(v)}" for k, v in (c["values"] or {}).items()),
-         _g(c["gain"]), _g(c.get("min_gain", diagnosis["min_gain"])), _g(c["future_gain"]), c["decision"]]
+         _g(c["gain"]), _g(c.get("min_gain", diagnosis["min_gain"])), _g(c.get("time_gain")),
+         _g(c.get("min_time_gain")), _g(c["future_gain"]), c.get("decided_on", "views"), c["decision"]]
         for n, c in diagnosis["candidates"].items()
     ]  # fmt: skip
-    header = ["candidate", "changes", "fitted values", "held-out gain", "threshold", "future gain", "decision"]
+    header = ["candidate", "changes", "fitted values", "held-out-view gain", "threshold", "held-out-time gain",
+              "threshold", "future gain", "decided on", "decision"]  # fmt: skip
     body.append(table(header, rows))
+    if diagnosis.get("time_frames"):
+        body.append(paragraph(
+            f"Every fit uses frames {diagnosis['frames'][0]}-{diagnosis['frames'][-1]}; the held-out time is frames "
+            f"{diagnosis['time_frames'][0]}-{diagnosis['time_frames'][-1]} of the fit window (all views), scored on "
+            "each fit's open-loop rollout. Gains are the share of the base's discrepancy above the floor (frame 0's) "
+            f"that a candidate removes; the cause is decided on: {esc(diagnosis.get('judge', 'views'))} (gravity "
+            "and drag always on their free-flight window's held-out views)."
+        ))  # fmt: skip
     at_truth = {n: c["truth"] for n, c in diagnosis["candidates"].items() if c.get("truth")}
     if at_truth:
         parts = [
@@ -191,8 +201,8 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
         ))  # fmt: skip
     body.append(paragraph(
         f"Observed: {diagnosis['sequence']}. Measure: {diagnosis['discrepancy']['measure']} ({unit}). Base D, summed "
-        f"over the view-frames: fitting views {_g(base['d_fit'])}, held-out views {_g(base['d_held_out'])}, future "
-        f"frames {_g(base['d_future'])}."
+        f"over the view-frames: fitting views {_g(base['d_fit'])}, held-out views {_g(base['d_held_out'])}, held-out "
+        f"time {_g(base.get('d_time'))}, future frames {_g(base['d_future'])}."
     ))  # fmt: skip
     if record is None:
         return Section("Model discrepancy", "".join(body))

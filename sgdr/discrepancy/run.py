@@ -37,7 +37,15 @@ from types import SimpleNamespace
 import numpy as np
 
 from sgdr.discrepancy.candidates import CANDIDATES, CONTROLS, Context, Evaluator, fit_candidate
-from sgdr.discrepancy.decision import decide, excess_gain, rivals, settle_mimics, threshold
+from sgdr.discrepancy.decision import (
+    decide,
+    decision_gains,
+    excess_gain,
+    rivals,
+    settle_mimics,
+    threshold,
+    time_threshold,
+)
 from sgdr.discrepancy.measures import MEASURES
 from sgdr.discrepancy.report import section, write_plots
 from sgdr.discrepancy.residuals import d_matrix, residual_diagnostics, summary
@@ -89,6 +97,23 @@ class Observed:
     obs_future: object
     score: object
     ev: Evaluator
+    time_frames: np.ndarray  # the held-out time: the fit window's last frames (empty: none held out)
+    obs_time: object  # their observation in all views (None: none held out)
+
+
+def held_out_time_frames(n_fit: int, share: float, where) -> int:
+    """How many of the fit window's last frames are held out (`diagnose.held_out_time`, a share of
+    the fit frames after frame 0, at least one when the share is positive); at least two fit frames
+    after frame 0 must stay before them."""
+    if share <= 0:
+        return 0
+    n = max(1, int(round(float(share) * (n_fit - 1))))
+    if n_fit - 1 - n < 2:
+        raise ValueError(
+            f"{where}: {n_fit} fit frames; holding out the last {n} (diagnose.held_out_time={share}) leaves "
+            f"{n_fit - 1 - n} after frame 0 to fit, need 2 (lower diagnose.held_out_time, 0 = none held out)"
+        )
+    return n
 
 
 def observe_run(cfg) -> Observed:
@@ -102,33 +127,41 @@ def observe_run(cfg) -> Observed:
         raise ValueError(f"{seq_dir}: one view; the diagnosis needs held-out views (at least 2)")
     views = list(range(len(seq.cameras)))
     fit_views, held_views = views[0::2], views[1::2]
-    fit_frames = np.arange(1, seq.n_fit, int(dc.frame_stride))
+    fit_end = seq.n_fit - held_out_time_frames(seq.n_fit, float(dc.held_out_time), seq_dir)
+    fit_frames = np.arange(1, fit_end, int(dc.frame_stride))
     if fit_frames.size == 0:
         raise ValueError(f"{seq_dir}: no fit frame after frame 0")
+    time_frames = np.arange(fit_end, seq.n_fit)
     measure = MEASURES.get_named(dc.discrepancy, "diagnose.discrepancy")
     obs_fit = measure.observe(seq, fit_views, fit_frames, dc, cfg.seed)
     obs_held = measure.observe(seq, held_views, fit_frames, dc, cfg.seed)
+    obs_time = measure.observe(seq, views, time_frames, dc, cfg.seed) if time_frames.size else None
     future = np.arange(seq.n_fit, seq.n_frames)
     obs_future = measure.observe(seq, views, future, dc, cfg.seed) if future.size else None
     score = measure.scorer(asset, dc, cfg.render, cfg.seed)
-    ev = Evaluator(asset, ROLLOUTS.get_named(dc.rollout, "diagnose.rollout"), obs_fit, obs_held, obs_future, score)
+    rollout = ROLLOUTS.get_named(dc.rollout, "diagnose.rollout")
+    ev = Evaluator(asset, rollout, obs_fit, obs_held, obs_future, score, obs_time)
     return Observed(run_dir, asset_dir, asset, seq_dir, seq, views, fit_views, held_views, fit_frames, future,
-                    measure, obs_fit, obs_held, obs_future, score, ev)  # fmt: skip
+                    measure, obs_fit, obs_held, obs_future, score, ev, time_frames, obs_time)  # fmt: skip
 
 
 def base_and_floor(o: Observed, dc, seed) -> tuple[dict, dict]:
-    """The base model's D on the fitting, held-out and future observations, and the floor of each
-    gain: frame 0's D (the rest state, which no extension changes) in the same views, once per
-    frame of the observation: what the asset's appearance leaves that no dynamics can remove."""
+    """The base model's D on the fitting, held-out, held-out-time and future observations, and the
+    floor of each gain: frame 0's D (the rest state, which no extension changes) in the same views,
+    once per frame of the observation: what the asset's appearance leaves that no dynamics can
+    remove."""
     ev = o.ev
     base = {"d_fit": ev.d({}, o.obs_fit), "d_held_out": ev.d({}, o.obs_held)}
-    base["d_future"] = ev.d({}, o.obs_future) if o.obs_future is not None else None
+    base["d_time"] = ev.d_or_none({}, o.obs_time)
+    base["d_future"] = ev.d_or_none({}, o.obs_future)
     if not np.isfinite(base["d_held_out"]):
         raise RuntimeError(f"{o.asset_dir}: the identified parameters' rollout is unstable")
     floor = {}
-    for key, vs, n in (("held_out", o.held_views, o.fit_frames.size), ("future", o.views, o.future.size)):
+    parts = (("held_out", o.held_views, o.fit_frames.size), ("time", o.views, o.time_frames.size),
+             ("future", o.views, o.future.size))  # fmt: skip
+    for key, vs, n in parts:
         floor[key] = frame0_floor(o.measure, o.seq, vs, n, dc, seed, o.score, ev.positions({})) if n else None
-    base["floor_held_out"], base["floor_future"] = floor["held_out"], floor["future"]
+    base["floor_held_out"], base["floor_time"], base["floor_future"] = floor["held_out"], floor["time"], floor["future"]
     return base, floor
 
 
@@ -162,14 +195,11 @@ def refit_base(ev, ctx, dc, base: dict, floor: dict) -> tuple[dict | None, dict,
     rebase["second_sweep"] = second["steps"]
     if second["d_fit"] < rebase["d_fit"]:
         refit_values = {**refit_values, **second["replacements"]}
-        rebase.update({k: second[k] for k in ("d_fit", "d_held_out", "d_future")})
+        rebase.update({k: second[k] for k in ("d_fit", "d_held_out", "d_time", "d_future")})
     rebase["held_out_gain"] = excess_gain(rebase["d_held_out"], base["d_held_out"], floor["held_out"], margin)
-    rebase["future_gain"] = (
-        excess_gain(rebase["d_future"], base["d_future"], floor["future"], margin)
-        if rebase["d_future"] is not None
-        else None
-    )
-    base = {**base, **{k: rebase[k] for k in ("d_fit", "d_held_out", "d_future")}}
+    rebase["time_gain"] = optional_gain(rebase["d_time"], base["d_time"], floor["time"], margin)
+    rebase["future_gain"] = optional_gain(rebase["d_future"], base["d_future"], floor["future"], margin)
+    base = {**base, **{k: rebase[k] for k in ("d_fit", "d_held_out", "d_time", "d_future")}}
     log.info(
         "diagnose: base refit %s, held-out gain %.3f over the asset's fit",
         {n: st["values"] for n, st in rebase["steps"].items()}, rebase["held_out_gain"],
@@ -200,7 +230,7 @@ def fit_candidates(ev, ctx, dc, base, floor, asset_fit, rebase, asset_state, ref
             settings, repl = cand.apply(ctx, fit.values, fit.variant)
             joint = refit_controls(ev, ctx, dc, max(4, int(dc.evaluations) // 2), settings, repl)
             joint.pop("replacements")
-            fit = replace(fit, d_fit=joint["d_fit"], d_held_out=joint["d_held_out"], d_future=joint["d_future"])
+            fit = replace(fit, **{k: joint[k] for k in ("d_fit", "d_held_out", "d_time", "d_future")})
         return fit, joint, d_alone, start
 
     for name in dc.candidates:
@@ -220,7 +250,7 @@ def fit_candidates(ev, ctx, dc, base, floor, asset_fit, rebase, asset_state, ref
         # what the controls' refit beside it gains; either way the base's losses stand (gain 0)
         at_null = bool(fit.d_fit > base["d_fit"]) or cand.at_null(fit.values, ctx.size)
         if at_null:
-            fit = replace(fit, d_fit=base["d_fit"], d_held_out=base["d_held_out"], d_future=base["d_future"])
+            fit = replace(fit, **{k: base[k] for k in ("d_fit", "d_held_out", "d_time", "d_future")})
         candidates[name] = candidate_record(
             cand,
             fit,
@@ -228,6 +258,7 @@ def fit_candidates(ev, ctx, dc, base, floor, asset_fit, rebase, asset_state, ref
             (base["d_future"], floor["future"]),
             margin,
             joint,
+            time=(base["d_time"], floor["time"]),
             gain_over_asset_fit=excess_gain(d_alone, asset_fit["d_held_out"], floor["held_out"], margin),
             at_null=at_null,
             window="fit",
@@ -255,11 +286,13 @@ def judge_at_truth(candidates: dict, o: Observed, ev, refit_state, ctx, base, fl
 
 def name_cause(candidates: dict, dc) -> tuple[str | None, list[str], list[str]]:
     """Step 4 (`sgdr.discrepancy.decision`): the named candidate, its rivals (other causes that fit
-    as well) and the free-flight mimics a tie was settled between (else []); each candidate's
-    record gets its threshold and its decision."""
-    thresholds = {n: threshold(dc, n) for n in candidates}
+    as well) and the free-flight mimics a tie was settled between (else []), each candidate decided
+    on the gain `diagnose.judge` names (`decision_gains`); each candidate's record gets its
+    thresholds, what it was decided on and its decision."""
+    views = {n: threshold(dc, n) for n in candidates}
+    time = {n: time_threshold(dc, n) for n in candidates}
+    gains, thresholds = decision_gains(candidates, dc.judge, views, time)
     free = [n for n, c in candidates.items() if c["window"] == "free_flight"]
-    gains = {n: c["gain"] for n, c in candidates.items()}
     best = decide(gains, thresholds, free)
     causes = {n: c["cause"] for n, c in candidates.items()}
     rival = rivals(gains, thresholds, best, causes, dc.mimic_margin, free)
@@ -267,7 +300,8 @@ def name_cause(candidates: dict, dc) -> tuple[str | None, list[str], list[str]]:
     window_gains = {n: c.get("fit_window_gain") for n, c in candidates.items()}
     best, rival = settle_mimics(best, rival, window_gains, dc.mimic_window_margin, thresholds)
     for name, c in candidates.items():
-        c["min_gain"] = thresholds[name]
+        c["min_gain"], c["min_time_gain"] = views[name], time[name]
+        c["decided_on"] = "views" if dc.judge == "views" or c["window"] == "free_flight" else dc.judge
         c["decision"] = "cause" if name == best else "as good" if name in rival else "rejected"
     return best, rival, (tie if tie and not rival else [])
 
@@ -285,7 +319,7 @@ def write_outputs(record: dict, o: Observed, dc, rebase, refit_values, asset_sta
     o.ev.reset(asset_state[0], asset_state[1])  # the residuals are the run's own fit's
     ctx.values = asset_state[2]
     if dc.residuals:
-        parts = [(o.fit_views, o.obs_fit), (o.held_views, o.obs_held), (o.views, o.obs_future)]
+        parts = [(o.fit_views, o.obs_fit), (o.held_views, o.obs_held), (o.views, o.obs_time), (o.views, o.obs_future)]
         residuals, plots = write_residuals(o.ev, parts, o.seq, o.asset, dc, out, o.measure.unit)
         record["residuals"] = summary(residuals)
     record["seconds"] = time.time() - t0
@@ -337,6 +371,9 @@ def run_diagnosis(cfg) -> dict:
         "fitting_views": [o.seq.cameras[v].name for v in o.fit_views],
         "held_out_views": [o.seq.cameras[v].name for v in o.held_views],
         "frames": o.fit_frames.tolist(),
+        # the fit window's last frames, held out: every fit is scored on their open-loop rollout
+        "time_frames": o.time_frames.tolist(),
+        "judge": dc.judge,
         "free_flight": None if flight is None else flight["record"],
         "future_frames": o.future.tolist(),
         "sequence": str(o.seq_dir),
@@ -414,17 +451,17 @@ def judge_in_free_flight(cand, flight, ev, refit_state, ctx, base, floor, dc) ->
     fb = flight["base"]
     at_null = bool(fit.d_fit > fb["d_fit"]) or cand.at_null(fit.values, ctx.size)
     ev.reset(refit_state[0], refit_state[1])
-    d_future = None
-    if ev.obs_future is not None:
-        d_future = base["d_future"] if at_null else ev.d(settings, ev.obs_future, repl)
+    d_future = base["d_future"] if at_null else ev.d_or_none(settings, ev.obs_future, repl)
+    d_time = base["d_time"] if at_null else ev.d_or_none(settings, ev.obs_time, repl)
     d_window = base["d_held_out"] if at_null else ev.d(settings, ev.obs_held, repl)
     if at_null:
         fit = replace(fit, d_fit=fb["d_fit"], d_held_out=fb["d_held_out"])
-    fit = replace(fit, d_future=d_future)
+    fit = replace(fit, d_future=d_future, d_time=d_time)
     held, future = (fb["d_held_out"], flight["floor"]), (base["d_future"], floor["future"])
     margin = float(dc.floor_margin)
     window_gain = excess_gain(d_window, base["d_held_out"], floor["held_out"], margin)
-    record = candidate_record(cand, fit, held, future, margin, None, gain_over_asset_fit=None)
+    time = (base["d_time"], floor["time"])
+    record = candidate_record(cand, fit, held, future, margin, None, time=time, gain_over_asset_fit=None)
     return {**record, "at_null": at_null, "from": "refit", "window": "free_flight", "fit_window_gain": window_gain}
 
 
@@ -447,7 +484,8 @@ def _judge_truth(cand, at: tuple, flight: dict | None, ev, refit_state, ctx, bas
     margin = float(dc.floor_margin)
     out = {"values": values, "variant": variant, "settings": {f"physics.{k}": v for k, v in settings.items()}}
     ev.reset(refit_state[0], refit_state[1])
-    d_future = ev.d(settings, ev.obs_future, repl) if ev.obs_future is not None else None
+    d_future = ev.d_or_none(settings, ev.obs_future, repl)
+    d_time = ev.d_or_none(settings, ev.obs_time, repl)
     if flight is not None:
         fev, fb = flight["ev"], flight["base"]
         d_held = fev.d(settings, fev.obs_held, repl)
@@ -461,7 +499,7 @@ def _judge_truth(cand, at: tuple, flight: dict | None, ev, refit_state, ctx, bas
         d_held = d_alone
         if dc.rebase:
             joint = refit_controls(ev, ctx, dc, max(4, int(dc.evaluations) // 2), settings, repl)
-            d_held, d_future = joint["d_held_out"], joint["d_future"]
+            d_held, d_future, d_time = joint["d_held_out"], joint["d_future"], joint["d_time"]
             out["controls"] = {n: st["values"] for n, st in joint["steps"].items()}
         out.update(
             window="fit",
@@ -469,15 +507,25 @@ def _judge_truth(cand, at: tuple, flight: dict | None, ev, refit_state, ctx, bas
             gain=excess_gain(d_held, base["d_held_out"], floor["held_out"], margin),
             gain_without_controls=excess_gain(d_alone, base["d_held_out"], floor["held_out"], margin),
         )
+    out["time_loss"] = d_time
+    out["time_gain"] = optional_gain(d_time, base["d_time"], floor["time"], margin)
     out["future_loss"] = d_future
-    out["future_gain"] = None if d_future is None else excess_gain(d_future, base["d_future"], floor["future"], margin)
+    out["future_gain"] = optional_gain(d_future, base["d_future"], floor["future"], margin)
     return out
 
 
-def candidate_record(cand, fit, held: tuple, future: tuple, margin: float, joint: dict | None, **extra) -> dict:
+def optional_gain(d: float | None, d_base: float | None, floor: float | None, margin: float) -> float | None:
+    """`excess_gain` on an optional observation (the held-out time, the future frames): None without it."""
+    return None if d is None or d_base is None else excess_gain(d, d_base, floor, margin)
+
+
+def candidate_record(
+    cand, fit, held: tuple, future: tuple, margin: float, joint: dict | None, time: tuple = (None, None), **extra
+) -> dict:
     """diagnosis.json's entry for a fitted candidate: its values and intervals, its losses (those of
-    `fit`, already final), its gains over the base; held / future: (the base's D, the floor) on the
-    held-out views and the future frames; joint: the controls refitted beside it (None: none)."""
+    `fit`, already final), its gains over the base; held / time / future: (the base's D, the floor)
+    on the held-out views, the held-out time and the future frames; joint: the controls refitted
+    beside it (None: none)."""
     first = cand.params[0].name
     d_future = fit.d_future
     return {
@@ -493,8 +541,10 @@ def candidate_record(cand, fit, held: tuple, future: tuple, margin: float, joint
         "held_out_loss": fit.d_held_out,
         "gain": excess_gain(fit.d_held_out, held[0], held[1], margin),
         "relative_gain": 1.0 - fit.d_held_out / held[0],
+        "time_loss": fit.d_time,
+        "time_gain": optional_gain(fit.d_time, time[0], time[1], margin),
         "future_loss": d_future,
-        "future_gain": None if d_future is None else excess_gain(d_future, future[0], future[1], margin),
+        "future_gain": optional_gain(d_future, future[0], future[1], margin),
         "evaluations": len(fit.evaluated),
         "controls": None if joint is None else {n: st["values"] for n, st in joint["steps"].items()},
         "controls_kept": None if joint is None else [n for n, st in joint["steps"].items() if st["kept"]],
@@ -528,7 +578,8 @@ def refit_controls(ev, ctx, dc, evaluations: int, settings: dict | None = None, 
                 d_fit = fit.d_fit
         out = {"steps": steps, "d_fit": ev.d({}, ev.obs_fit), "d_held_out": ev.d({}, ev.obs_held)}
         out["replacements"] = kept
-        out["d_future"] = ev.d({}, ev.obs_future) if ev.obs_future is not None else None
+        out["d_time"] = ev.d_or_none({}, ev.obs_time)
+        out["d_future"] = ev.d_or_none({}, ev.obs_future)
     finally:
         ev.reset(saved[0], saved[1])
         ctx.values = saved[2]

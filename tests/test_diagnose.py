@@ -137,6 +137,23 @@ def test_a_moved_ground_is_named_with_its_offset(tiny):
     # absorbs effects)
     assert "truth" not in r["candidates"]["gravity"] and "truth" not in r["candidates"]["plasticity"]
     assert 'id="discrepancy-truth"' in Path(r["report"]).read_text()
+    # the held-out time (frames 6-7 of the tiny fit window, never fitted) shows the offset too
+    assert r["time_frames"] == [6, 7] and r["frames"] == [1, 2, 3, 4, 5]
+    assert c["time_gain"] >= 0.3, c
+    assert at_truth["time_gain"] >= 0.3, at_truth
+    # the named cause's extension: the asset with it loads with the fitted offset, and removes the
+    # base's residual on the held-out time
+    from sgdr.asset.store import load_asset
+
+    ext = r["extension"]
+    extended = load_asset(ext["asset"])
+    assert extended.physics.ground_offset == pytest.approx(c["value"])
+    assert json.loads((Path(ext["asset"]) / "asset.json").read_text())["extension"]["candidate"] == "ground_plane"
+    base, with_it = (np.array(ext["per_frame"][k], float) for k in ("base", "extended"))
+    assert base.shape == with_it.shape == (12,) and np.isnan(base[0])  # frame 0 is not scored
+    assert with_it[6:8].mean() < 0.7 * base[6:8].mean(), ext["per_frame"]
+    assert Path(ext["plot"]).stat().st_size > 1000
+    assert "the residual the named cause removes" in Path(r["report"]).read_text()
 
 
 def test_weaker_gravity_is_named_with_its_scale(tiny):

@@ -110,6 +110,29 @@ def plot_spatial(record: dict, maps: list, path, n_views: int) -> Path:
     return Path(path)
 
 
+def plot_extension(per_frame: dict, diagnosis: dict, name: str, path) -> Path:
+    """The residual the named cause removes: D per frame (mean over the views) of the refit base and
+    of the extended model, with the held-out time and the future frames shaded."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7, 3))
+    for key, style, label in (("base", "k.-", "base (refit)"), ("extended", "C3.-", f"with {name}")):
+        d = np.array([np.nan if v is None else v for v in per_frame[key]], float)
+        ax.plot(np.arange(d.size), d, style, label=label, ms=4)
+    time, future = diagnosis.get("time_frames") or [], diagnosis.get("future_frames") or []
+    if time:
+        ax.axvspan(time[0] - 0.5, time[-1] + 0.5, color="tab:green", alpha=0.12, label="held-out time")
+    if future:
+        ax.axvspan(future[0] - 0.5, future[-1] + 0.5, color="tab:orange", alpha=0.12, label="future")
+    unit = (diagnosis.get("discrepancy") or {}).get("unit") or "the diagnosis's measure"
+    ax.set_xlabel("frame")
+    ax.set_ylabel(f"mean D ({unit})")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
 def write_plots(record: dict, maps: list, out_dir, n_views: int) -> dict:
     """{name: path} of the three plots written into out_dir."""
     out_dir = Path(out_dir)
@@ -173,6 +196,21 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
             f"that a candidate removes; the cause is decided on: {esc(diagnosis.get('judge', 'views'))} (gravity "
             "and drag always on their free-flight window's held-out views)."
         ))  # fmt: skip
+    ext = diagnosis.get("extension")
+    if ext:
+        fitted = ", ".join(
+            f"{esc(k)} = {_g(v)} [{_g(ext['intervals'][k][0])}, {_g(ext['intervals'][k][1])}]"
+            for k, v in ext["values"].items()
+        )
+        body.append(paragraph(
+            f"The named cause's extension ({esc(ext['candidate'])}): {fitted} (the values whose fitting D is within 5% "
+            f"of the best); held-out-view gain {_g(ext['held_out_gain'])}, held-out-time gain {_g(ext['time_gain'])}, "
+            f"future gain {_g(ext['future_gain'])}. The asset with it: {esc(ext['asset'])} "
+            "(experiments/simulate.py loads it)."
+        ))  # fmt: skip
+        body.append(image(ext["plot"], "the residual the named cause removes",
+                          "D per frame (mean over the views) of the refit base and of the model with the named "
+                          "extension; green: the held-out time (no fit saw it), orange: the future frames."))  # fmt: skip
     at_truth = {n: c["truth"] for n, c in diagnosis["candidates"].items() if c.get("truth")}
     if at_truth:
         parts = [

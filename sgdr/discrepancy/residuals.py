@@ -364,13 +364,14 @@ def _block_mean(img: np.ndarray, k: int) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- the whole record
-def d_matrix(evaluator, parts, n_views: int, n_frames: int) -> np.ndarray:
-    """D [V, T] of the base rollout in the diagnosis's measure (`evaluator.per_view_frame`; NaN
-    where no observation has the view-frame). parts: [(view indices, observation)], the
-    diagnosis's fitting, held-out and future ones."""
+def d_matrix(evaluator, parts, n_views: int, n_frames: int, settings=None, values=None) -> np.ndarray:
+    """D [V, T] of the base rollout (or the one with physics `settings` and value replacements
+    `values`) in the diagnosis's measure (`evaluator.per_view_frame`; NaN where no observation has
+    the view-frame, or the rollout is unstable). parts: [(view indices, observation)], the
+    diagnosis's fitting, held-out, held-out-time and future ones."""
     out = np.full((n_views, n_frames), np.nan)
     for views, obs in parts:
-        d = None if obs is None else evaluator.per_view_frame({}, obs)  # [V_obs, F_obs]
+        d = None if obs is None else evaluator.per_view_frame(settings or {}, obs, values)  # [V_obs, F_obs]
         if d is None:
             continue
         keep = obs.frames < n_frames

@@ -3,14 +3,18 @@
 1. The run's asset (its identified physics) and the observed sequence (the run's own, or
    `diagnose.sequence`, e.g. a twin with an injected effect).
 2. Observations of the measure (`diagnose.discrepancy`, `sgdr.discrepancy.measures`): the fit frames after
-   frame 0 in the fitting views (even positions among the views) and in the held-out views (odd
-   positions), and the future frames in all views when the sequence has future frames.
+   frame 0, except the last `diagnose.held_out_time` share of them, in the fitting views (even
+   positions among the views) and in the held-out views (odd positions); the held-out time (those
+   last fit frames) in all views; the future frames in all views when the sequence has them.
 3. The base model's D on each, then every candidate (`sgdr.discrepancy.candidates`) fitted on
-   the fitting views and judged on the held-out ones.
-4. The decision: among the candidates whose held-out gain reaches their threshold
-   (`diagnose.min_gain_by_candidate`, else `diagnose.min_gain`), the largest gain names the cause;
-   none passing: "none"; gain = 1 - (D_held_out(candidate) - floor) /
-   (D_held_out(base) - floor), the share of the base's discrepancy above the floor it removes.
+   the fitting views of the earlier frames and judged on the held-out views of those frames and on
+   the open-loop rollout of the held-out time.
+4. The decision (`diagnose.judge`: on the held-out views, the held-out time, or both): among the
+   candidates whose gain reaches their threshold (`diagnose.min_gain_by_candidate` /
+   `min_time_gain_by_candidate`, else `diagnose.min_gain` / `min_time_gain`), the largest gain
+   names the cause; none passing: "none"; gain = 1 - (D(candidate) - floor) /
+   (D(base) - floor), the share of the base's discrepancy above the floor it removes. A named
+   cause's extended asset is written (`asset_extended/`) with the residual it removes per frame.
    The floor is frame 0's D in the same views, once per frame: the rest state is the static
    fit's and no extension changes it, so what it leaves (appearance, the measure's own
    representation error) is not the dynamics' to explain. Without the floor a gain is diluted by
@@ -47,7 +51,7 @@ from sgdr.discrepancy.decision import (
     time_threshold,
 )
 from sgdr.discrepancy.measures import MEASURES
-from sgdr.discrepancy.report import section, write_plots
+from sgdr.discrepancy.report import plot_extension, section, write_plots
 from sgdr.discrepancy.residuals import d_matrix, residual_diagnostics, summary
 from sgdr.discrepancy.truth import scene_of, truth_values
 from sgdr.evaluate.score import strict_json
@@ -207,7 +211,7 @@ def refit_base(ev, ctx, dc, base: dict, floor: dict) -> tuple[dict | None, dict,
     return rebase, refit_values, base
 
 
-def fit_candidates(ev, ctx, dc, base, floor, asset_fit, rebase, asset_state, refit_state, flight) -> dict:
+def fit_candidates(ev, ctx, dc, base, floor, asset_fit, rebase, asset_state, refit_state, flight, applied=None) -> dict:
     """Step 3b: every candidate of `diagnose.candidates` fitted and judged on the held-out views
     (the free-flight ones on the free-flight window when there is one). Each candidate is fitted
     from the run's own fit (where a twin's effect is alone: the refit's controls may have absorbed
@@ -215,9 +219,12 @@ def fit_candidates(ev, ctx, dc, base, floor, asset_fit, rebase, asset_state, ref
     refit), then the controls are refitted beside it. When that ends above the refit base on the
     fitting views, the search lost its way from a fit the refit had moved far from (the MPM torus
     with gravity x0.85: gravity x1.24, held-out D twice the base's); the candidate is then fitted
-    again from the refit base, the better fit kept."""
+    again from the refit base, the better fit kept. `applied` (a dict, when given) gets per
+    candidate what its final rollout is: (the start "asset" | "refit", its physics settings, the
+    values it and the controls refitted beside it replace)."""
     margin = float(dc.floor_margin)
     candidates = {}
+    applied = {} if applied is None else applied
 
     def fitted(cand, start: str):
         values, settings, ctx.values = asset_state if start == "asset" else refit_state
@@ -226,25 +233,26 @@ def fit_candidates(ev, ctx, dc, base, floor, asset_fit, rebase, asset_state, ref
         warm = nested["values"] if nested is not None and not nested.get("at_null", False) else None
         fit = fit_candidate(ev, cand, ctx, dc.evaluations, start=warm)
         d_alone, joint = fit.d_held_out, None
+        settings, repl = cand.apply(ctx, fit.values, fit.variant)
         if rebase is not None:  # the base's own parameters refitted with the candidate in place
-            settings, repl = cand.apply(ctx, fit.values, fit.variant)
             joint = refit_controls(ev, ctx, dc, max(4, int(dc.evaluations) // 2), settings, repl)
-            joint.pop("replacements")
+            repl = {**repl, **joint.pop("replacements")}
             fit = replace(fit, **{k: joint[k] for k in ("d_fit", "d_held_out", "d_time", "d_future")})
-        return fit, joint, d_alone, start
+        return fit, joint, d_alone, start, (start, settings, repl)
 
     for name in dc.candidates:
         cand = CANDIDATES.get_named(name, "diagnose.candidates")
         if cand.window == "free_flight" and flight is not None:
             candidates[name] = judge_in_free_flight(cand, flight, ev, refit_state, ctx, base, floor, dc)
+            applied[name] = ("refit", *candidates[name].pop("applied"))
             log.info("diagnose: %s = %s, free-flight held-out gain %.3f", name, candidates[name]["values"],
                      candidates[name]["gain"])  # fmt: skip
             continue
-        fit, joint, d_alone, start = fitted(cand, "asset")
+        fit, joint, d_alone, start, applied[name] = fitted(cand, "asset")
         if rebase is not None and fit.d_fit > base["d_fit"]:
             again = fitted(cand, "refit")
             if again[0].d_fit < fit.d_fit:
-                fit, joint, d_alone, start = again
+                fit, joint, d_alone, start, applied[name] = again
         # nested: the candidate at its null value is the base, so a fit worse than the base on the
         # fitting views is a search that lost its way, and a fit at the null value gains only
         # what the controls' refit beside it gains; either way the base's losses stand (gain 0)
@@ -306,12 +314,16 @@ def name_cause(candidates: dict, dc) -> tuple[str | None, list[str], list[str]]:
     return best, rival, (tie if tie and not rival else [])
 
 
-def write_outputs(record: dict, o: Observed, dc, rebase, refit_values, asset_state, ctx, t0: float) -> dict:
+def write_outputs(record: dict, o: Observed, dc, rebase, refit_values, asset_state, ctx, t0: float,
+                  named=None) -> dict:  # fmt: skip
     """Step 5 and the files: the refit asset when the refit carries to the held-out views
-    (`diagnose.refit_min_gain`), the residual diagnostics of the run's own fit, diagnosis.json
-    and the report's section."""
+    (`diagnose.refit_min_gain`); for a named cause (`named`: its name, what it applied and the
+    state it started from) the extended asset and the residual it removes per frame; the residual
+    diagnostics of the run's own fit, diagnosis.json and the report's section."""
     out = Path(dc.out_dir) if dc.out_dir else o.run_dir / "diagnose"
     out.mkdir(parents=True, exist_ok=True)
+    if named is not None:
+        record["extension"] = write_extension(record, o, named, out)
     if refit_values and rebase["held_out_gain"] >= float(dc.refit_min_gain):
         record["refit_asset"] = str(write_refit_asset(o.asset, refit_values, out / "asset_refit", rebase))
         log.info("diagnose: the refit asset -> %s", record["refit_asset"])
@@ -348,7 +360,10 @@ def run_diagnosis(cfg) -> dict:
     refit_state = ({**o.ev.values, **refit_values}, dict(o.ev.settings), {**ctx.values, **refit_values})
     flight = free_flight(o.seq, o.asset, o.measure, dc, cfg.seed, o.fit_views, o.held_views, o.fit_frames, o.score,
                          refit_values)  # fmt: skip
-    candidates = fit_candidates(o.ev, ctx, dc, base, floor, asset_fit, rebase, asset_state, refit_state, flight)
+    applied: dict = {}
+    candidates = fit_candidates(
+        o.ev, ctx, dc, base, floor, asset_fit, rebase, asset_state, refit_state, flight, applied
+    )
     judge_at_truth(candidates, o, o.ev, refit_state, ctx, base, floor, dc, flight)
     best, rival, settled = name_cause(candidates, dc)
     record = {
@@ -381,7 +396,9 @@ def run_diagnosis(cfg) -> dict:
         "truth": o.seq.gt_effects() or {},
         "seconds": time.time() - t0,
     }
-    return write_outputs(record, o, dc, rebase, refit_values, asset_state, ctx, t0)
+    start = (refit_state if applied[best][0] == "refit" else asset_state) if best else None
+    named = (best, applied[best], start, refit_state) if best else None
+    return write_outputs(record, o, dc, rebase, refit_values, asset_state, ctx, t0, named)
 
 
 def free_flight(seq, asset, measure, dc, seed, fit_views, held_views, fit_frames, score, refit_values) -> dict | None:
@@ -462,7 +479,8 @@ def judge_in_free_flight(cand, flight, ev, refit_state, ctx, base, floor, dc) ->
     window_gain = excess_gain(d_window, base["d_held_out"], floor["held_out"], margin)
     time = (base["d_time"], floor["time"])
     record = candidate_record(cand, fit, held, future, margin, None, time=time, gain_over_asset_fit=None)
-    return {**record, "at_null": at_null, "from": "refit", "window": "free_flight", "fit_window_gain": window_gain}
+    return {**record, "at_null": at_null, "from": "refit", "window": "free_flight", "fit_window_gain": window_gain,
+            "applied": (settings, repl)}  # fmt: skip
 
 
 def judge_truth(cand, at: tuple, flight: dict | None, ev, refit_state, ctx, base, floor, dc) -> dict:
@@ -586,10 +604,11 @@ def refit_controls(ev, ctx, dc, evaluations: int, settings: dict | None = None, 
     return out
 
 
-def write_refit_asset(asset, replacements: dict, out: Path, rebase: dict) -> Path:
-    """A copy of the asset folder with the refitted values (`experiments/simulate.py` loads it like
-    any asset); n_substeps raised to the stability bound of the new stiffness when needed. asset.json
-    gets a "refit" entry saying where the values come from."""
+def write_asset_copy(asset, replacements: dict, out: Path, note: tuple, settings: dict | None = None) -> Path:
+    """A copy of the asset folder with `replacements` of its values and physics `settings`
+    (`experiments/simulate.py` loads it like any asset); n_substeps raised to the stability bound of
+    the new stiffness when needed. note: (key, entry) added to asset.json, saying where the values
+    come from."""
 
     out = Path(out)
     if out.exists():
@@ -598,18 +617,69 @@ def write_refit_asset(asset, replacements: dict, out: Path, rebase: dict) -> Pat
     values = {**asset.values, **replacements}
     np.savez(out / "params.npz", **{k: np.asarray(v, np.float64) for k, v in values.items()})
     model, _ = asset.build()
+    physics = replace(asset.physics, **(settings or {}))
     view = SimpleNamespace(log10_k=np.asarray(values["log10_k"], float), kappa=float(values["kappa"]))
     meta = json.loads((out / "asset.json").read_text())
-    meta["n_substeps"] = max(int(asset.n_substeps), stable_substeps(model, view, 1.0 / asset.fps, asset.physics))
-    meta["refit"] = {
+    meta["physics"] = {**meta["physics"], **(settings or {})}
+    meta["n_substeps"] = max(int(asset.n_substeps), stable_substeps(model, view, 1.0 / asset.fps, physics))
+    meta[note[0]] = note[1]
+    (out / "asset.json").write_text(json.dumps(meta, indent=1))
+    return out
+
+
+def write_refit_asset(asset, replacements: dict, out: Path, rebase: dict) -> Path:
+    """The asset with the base refit's values (`write_asset_copy`); asset.json's "refit" entry
+    says where they come from."""
+    note = {
         "from": str(asset.root),
         "by": "experiments/diagnose.py (diagnose.rebase)",
         "values": {n: st["values"] for n, st in rebase["steps"].items() if st["kept"]},
         "second_sweep": {n: st["values"] for n, st in (rebase.get("second_sweep") or {}).items() if st["kept"]},
         "held_out_gain": rebase["held_out_gain"],
     }
-    (out / "asset.json").write_text(json.dumps(meta, indent=1))
-    return out
+    return write_asset_copy(asset, replacements, out, ("refit", note))
+
+
+def write_extension(record: dict, o: Observed, named: tuple, out: Path) -> dict:
+    """The named cause's extended model: the asset with it (`asset_extended/`: the candidate's
+    physics settings, the values it and the controls refitted beside it replace), and the residual
+    it removes: D per frame (mean over the views that observe it) of the refit base and of the
+    extended model over the fit frames, the held-out time and the future, plotted in
+    `extension_residual.png`. Returns diagnosis.json's "extension" entry."""
+    name, (_, settings, repl), state, base_state = named
+    c = record["candidates"][name]
+    parts = [(o.fit_views, o.obs_fit), (o.held_views, o.obs_held), (o.views, o.obs_time), (o.views, o.obs_future)]
+    n = int(o.seq.n_frames)
+    o.ev.reset(state[0], state[1])
+    d_ext = d_matrix(o.ev, parts, len(o.views), n, settings, repl)
+    o.ev.reset(base_state[0], base_state[1])
+    d_base = d_matrix(o.ev, parts, len(o.views), n)
+    per_frame = {k: [None if not np.isfinite(x) else float(x) for x in _nanmean_cols(d)]
+                 for k, d in (("base", d_base), ("extended", d_ext))}  # fmt: skip
+    note = {
+        "from": str(o.asset.root),
+        "by": "experiments/diagnose.py (the named cause)",
+        "candidate": name,
+        "cause": c["cause"],
+        "values": c["values"],
+        "intervals": c["intervals"],
+        "settings": c["settings"],
+        "controls": c.get("controls"),
+        "held_out_gain": c["gain"],
+        "time_gain": c.get("time_gain"),
+        "future_gain": c.get("future_gain"),
+    }
+    values = {**state[0], **repl}
+    replaced = {k: v for k, v in values.items() if k in o.asset.values}
+    asset_dir = write_asset_copy(o.asset, replaced, out / "asset_extended", ("extension", note), settings)
+    plot = plot_extension(per_frame, record, name, out / "extension_residual.png")
+    return {**note, "asset": str(asset_dir), "per_frame": per_frame, "plot": str(plot)}
+
+
+def _nanmean_cols(d: np.ndarray) -> np.ndarray:
+    """The mean over rows of [V, T], NaN where a column has no finite entry."""
+    n = np.sum(np.isfinite(d), axis=0)
+    return np.where(n > 0, np.nansum(d, axis=0) / np.maximum(n, 1), np.nan)
 
 
 def write_residuals(ev, parts, seq, asset, dc, out: Path, unit: str) -> tuple[dict, dict]:

@@ -242,3 +242,31 @@ def test_the_held_out_time_is_a_share_of_the_fit_frames_with_two_left_to_fit():
     assert held_out_time_frames(4, 0.01, "seq") == 1  # at least one frame
     with pytest.raises(ValueError, match="seq.*diagnose.held_out_time=0.5"):
         held_out_time_frames(4, 0.5, "seq")
+
+
+def test_tied_falls_part_after_more_frames_and_a_sideways_throw_would_part_them():
+    """A weaker gravity and drag fitted to the same four frames of fall differ by a fraction of a
+    pixel there; a longer fall parts them, later the smaller the images; identical models never
+    part; the sideways speed that would show the drag is the one that moves a pixel by the end."""
+    from sgdr.cameras import Camera
+    from sgdr.discrepancy.candidates import _fall_basis
+    from sgdr.discrepancy.separate import separating_frames
+
+    fps, g = 24.0, np.array([0.0, 0.0, -9.8])
+    t = np.arange(1, 5) / fps
+    c = 2.0  # drag 2 /s; the weaker gravity that fits its first four frames (v0 = 0) in least squares
+    phi, psi = _fall_basis(c, t)
+    z_drag = psi * -9.8
+    basis = np.stack([t, 0.5 * t * t * -9.8], axis=1)  # z = w t + s (-9.8) t²/2
+    w, s = np.linalg.lstsq(basis, z_drag, rcond=None)[0]
+    models = {"gravity": (s, 0.0, np.array([0.0, 0.0, w])), "air_drag": (1.0, c, np.zeros(3))}
+    cams = [Camera.look_at([3.0, 0.0, 0.5], [0.0, 0.0, 0.5], [0.0, 0.0, 1.0], 40.0, w_px, w_px) for w_px in (64, 512)]
+    small, large = (separating_frames(models, g, [cam], np.array([0.0, 0.0, 0.5]), fps, 4) for cam in cams)
+    assert small["pixels_within_observed"] < 1.0
+    assert small["free_flight_frames"] > 4 and large["free_flight_frames"] < small["free_flight_frames"]
+    same = separating_frames({"a": models["gravity"], "b": models["gravity"]}, g, cams[:1], np.zeros(3), fps, 4)
+    assert same["free_flight_frames"] is None and same["sideways_speed"] is None
+    u = small["sideways_speed"]
+    lag = 4 / fps - _fall_basis(c, np.array([4 / fps]))[0][0]
+    uv = cams[0].project(np.array([[0.0, 0.0, 0.5], [0.0, u * lag, 0.5]]))[0]
+    assert np.linalg.norm(uv[1] - uv[0]) == pytest.approx(1.0, rel=0.05)

@@ -167,6 +167,25 @@ def section(diagnosis: dict, record: dict | None, plots: dict | None):
             f"{_g(diagnosis.get('mimic_margin'))} of the named cause's): these data do not tell them apart. "
             "Frames that separate them (e.g. a rebound, or sideways motion for air drag) would.</p>"
         )
+        sep = diagnosis.get("separate")
+        if sep:
+            frames = sep["free_flight_frames"]
+            longer = (
+                f"a free fall of {frames} frames ({_g(sep['seconds'])} s) before the hit, against the "
+                f"{sep['observed_frames']} observed, parts the fitted models by {_g(sep['pixel'])} pixel in some view"
+                if frames is not None
+                else "no fall within 10 s parts the fitted models by a pixel"
+            )
+            side = (
+                f"; or a sideways throw of at least {_g(sep['sideways_speed'])} scene units / s (drag slows it, a "
+                "weaker gravity does not)"
+                if sep.get("sideways_speed") is not None
+                else ""
+            )
+            body.append(
+                f'<p id="discrepancy-separate"><b>What would separate them:</b> {longer} (they differ by at most '
+                f"{_g(sep['pixels_within_observed'])} pixels over the observed frames){side}.</p>"
+            )
     tie = diagnosis.get("settled_among") or []
     named = next((n for n, c in diagnosis["candidates"].items() if c["decision"] == "cause"), None)
     if tie and named in tie:

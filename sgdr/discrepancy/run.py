@@ -53,6 +53,7 @@ from sgdr.discrepancy.decision import (
 from sgdr.discrepancy.measures import MEASURES
 from sgdr.discrepancy.report import plot_extension, section, write_plots
 from sgdr.discrepancy.residuals import d_matrix, residual_diagnostics, summary
+from sgdr.discrepancy.separate import separating_frames
 from sgdr.discrepancy.truth import scene_of, truth_values
 from sgdr.evaluate.score import strict_json
 from sgdr.observe.contact import touching
@@ -396,9 +397,29 @@ def run_diagnosis(cfg) -> dict:
         "truth": o.seq.gt_effects() or {},
         "seconds": time.time() - t0,
     }
+    if rival and flight is not None and all(candidates[n]["window"] == "free_flight" for n in [best, *rival]):
+        record["separate"] = separate_mimics([best, *rival], applied, refit_state, ctx, o, flight)
     start = (refit_state if applied[best][0] == "refit" else asset_state) if best else None
     named = (best, applied[best], start, refit_state) if best else None
     return write_outputs(record, o, dc, rebase, refit_values, asset_state, ctx, t0, named)
+
+
+def separate_mimics(names: list, applied: dict, refit_state, ctx, o: Observed, flight: dict) -> dict:
+    """What would tell tied free-flight candidates apart (`sgdr.discrepancy.separate`): each one's
+    fall as its fit applied it (gravity scale, drag, v0) from the refit base."""
+    models = {}
+    for n in names:
+        _, settings, repl = applied[n]
+        models[n] = (
+            float(settings.get("gravity_scale", ctx.physics.gravity_scale)),
+            float(settings.get("air_drag", ctx.physics.air_drag)),
+            np.asarray(repl.get("v0", refit_state[0]["v0"]), float),
+        )
+    centre = np.asarray(o.asset.anchors, float).mean(axis=0)
+    observed = int(flight["record"]["frames"][-1])
+    out = separating_frames(models, refit_state[0]["gravity"], o.seq.cameras, centre, float(o.asset.fps), observed)
+    log.info("diagnose: %s tie; %s free-flight frames would part them by a pixel", names, out["free_flight_frames"])
+    return {"candidates": names, **out}
 
 
 def free_flight(seq, asset, measure, dc, seed, fit_views, held_views, fit_frames, score, refit_values) -> dict | None:

@@ -238,8 +238,14 @@ def run_case(case: Case, args, reconstruct: bool) -> dict:
     rc, out = _run(cmd, log_file)
     if rc != 0:
         return _failed(rec, "diagnose", out, log_file)
-    diag = json.loads((run_dir / "diagnose" / "diagnosis.json").read_text())
-    rec.update(status="ok", cause=diag["cause"], correct=diag["cause"] == case.expected, truth=diag.get("truth", {}))
+    return diagnosis_record(rec, run_dir / "diagnose" / "diagnosis.json", run_dir)
+
+
+def diagnosis_record(rec: dict, diagnosis_file: Path, run_dir: Path) -> dict:
+    """A case's record (`rec`: the case, its commit, timings, effect sizes) completed from its
+    diagnosis.json: the cause, every candidate's value, gains and truth, the base refit."""
+    diag = json.loads(Path(diagnosis_file).read_text())
+    rec.update(status="ok", cause=diag["cause"], correct=diag["cause"] == rec["expected"], truth=diag.get("truth", {}))
     rec["ambiguous_with"] = diag.get("ambiguous_with", [])
     rec["settled_among"] = diag.get("settled_among", [])
     rec["candidates"] = {

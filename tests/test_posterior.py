@@ -387,6 +387,20 @@ def test_tiny_rendered_posterior_converges_on_a_twin(tiny):
     assert len(ball["radius"]) == record["predictive"]["frames"] and ball["truth_inside_future"] is not None
     page = (run_dir / "report" / "report.html").read_text()
     assert "Gaussian-process surrogate" in page and "95% interval" in page
+    # the likelihood's profile through the twin's truth (evaluation.studies.likelihood_profile): its
+    # loss is lowest there, the twin being the model's own images
+    from evaluation.studies.likelihood_profile import centre_of, parse_steps, profile
+
+    names = record["names"]
+    centre = centre_of(record, "truth", names, "posterior.json")
+    assert centre[names.index("log10_k_shift")] == pytest.approx(TRUE_SHIFT)
+    prof = profile(cfg, centre, names, parse_steps("log10_k_shift:-0.2,0.2"))
+    moved = [m["loss"] for m in prof["moved"]["log10_k_shift"]]
+    assert prof["centre_loss"] < min(moved), prof
+    with pytest.raises(SystemExit, match="not sampled"):
+        profile(cfg, centre, names, parse_steps("kappa:0.1"))
+    with pytest.raises(SystemExit, match="centre=map.nothing"):
+        centre_of(record, "map.nothing", names, "posterior.json")
 
 
 @slow

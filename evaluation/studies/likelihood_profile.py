@@ -1,0 +1,102 @@
+"""How sharp the rendered likelihood is around a point: the posterior's image loss (`RenderedImages`,
+the scale and views the posterior uses) at a centre and with each sampled parameter moved alone.
+
+    python -m evaluation.studies.likelihood_profile posterior.run=outputs/torus_small_s0 preset=small \\
+        posterior.sequence=outputs/calibration_small/case_000/twin \\
+        +posterior_json=outputs/calibration_small/case_000/posterior/posterior.json +centre=truth
+
+`+centre` is a section of the posterior.json holding one value per sampled parameter (`truth`,
+`map`, or `likelihood.reference`); `+steps=name:a,b,...;name:...` overrides the offsets (the
+defaults below). Prints one JSON object: the centre, its mean loss per view-frame, and per
+parameter the offsets and their losses (docs/posterior.md, "SBC at small").
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+from omegaconf import OmegaConf
+
+import sgdr.backend
+from sgdr.cli import user_errors
+from sgdr.config import compose, validate
+from sgdr.posterior.run import Problem, _rendered_images
+from sgdr.run_folder import run_asset_and_sequence
+
+STEPS = {
+    "log10_k_shift": [-0.2, -0.1, -0.05, -0.02, 0.02, 0.05, 0.1, 0.2],
+    "kappa": [-1.0, -0.3, -0.1, 0.1, 0.3, 1.0],
+    "friction": [-0.2, -0.05, 0.05, 0.2],
+    "restitution": [-0.2, -0.05, 0.05, 0.2],
+}
+
+
+def parse_steps(text: str | None) -> dict:
+    """'name:a,b;name:c' -> {name: [a, b], ...}; None: `STEPS`."""
+    if not text:
+        return dict(STEPS)
+    out = {}
+    for part in text.split(";"):
+        name, _, values = part.partition(":")
+        try:
+            out[name.strip()] = [float(v) for v in values.split(",") if v.strip()]
+        except ValueError:
+            raise SystemExit(f"error: +steps={text}: expected name:a,b;name:c") from None
+    return out
+
+
+def centre_of(posterior: dict, key: str, names: list[str], where: str) -> np.ndarray:
+    """One value per sampled parameter from a posterior.json section (`likelihood.reference` reads
+    nested keys)."""
+    section = posterior
+    for k in key.split("."):
+        section = section.get(k) if isinstance(section, dict) else None
+    if not isinstance(section, dict) or any(n not in section for n in names):
+        raise SystemExit(f"error: {where}: +centre={key} does not hold a value for each of {names}")
+    return np.array([float(section[n]) for n in names])
+
+
+def profile(cfg, centre: np.ndarray, names: list[str], steps: dict) -> dict:
+    """The mean loss per view-frame at `centre` and with each parameter of `steps` moved alone."""
+    unknown = [n for n in steps if n not in names]
+    if unknown:
+        raise SystemExit(f"error: +steps: {unknown} not sampled (posterior.parameters: {names})")
+    pc = cfg.posterior
+    _, asset, _, seq = run_asset_and_sequence(Path(pc.run), pc.sequence, cfg.scene_file, "posterior")
+    problem = Problem.from_config(asset, pc)
+    images = _rendered_images(cfg, Path(pc.run), asset, seq, problem)
+    thetas, labels = [centre], [(None, 0.0)]
+    for name, offsets in steps.items():
+        for d in offsets:
+            t = centre.copy()
+            t[names.index(name)] += d
+            thetas.append(t)
+            labels.append((name, d))
+    losses = np.asarray(images(np.array(thetas)), float).mean(axis=(1, 2))
+    out = {"centre": dict(zip(names, centre.tolist())), "centre_loss": float(losses[0]), "moved": {}}
+    for (name, d), loss in zip(labels[1:], losses[1:]):
+        out["moved"].setdefault(name, []).append({"offset": d, "loss": float(loss)})
+    return out
+
+
+def main(argv: list[str]) -> None:
+    extra = {a.split("=", 1)[0][1:]: a.split("=", 1)[1] for a in argv if a.startswith("+")}
+    overrides = [a for a in argv if not a.startswith("+")]
+    with user_errors():
+        cfg = OmegaConf.to_object(compose(overrides))
+        validate(cfg)
+        if "posterior_json" not in extra:
+            raise SystemExit("error: +posterior_json=<a posterior.json> is needed (its section +centre is the centre)")
+        where = extra["posterior_json"]
+        posterior = json.loads(Path(where).read_text())
+        names = list(posterior["names"])
+        centre = centre_of(posterior, extra.get("centre", "truth"), names, where)
+        sgdr.backend.init(cfg.backend, cfg.threads or None)
+        print(json.dumps(profile(cfg, centre, names, parse_steps(extra.get("steps")))))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

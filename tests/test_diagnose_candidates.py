@@ -270,3 +270,27 @@ def test_tied_falls_part_after_more_frames_and_a_sideways_throw_would_part_them(
     lag = 4 / fps - _fall_basis(c, np.array([4 / fps]))[0][0]
     uv = cams[0].project(np.array([[0.0, 0.0, 0.5], [0.0, u * lag, 0.5]]))[0]
     assert np.linalg.norm(uv[1] - uv[0]) == pytest.approx(1.0, rel=0.05)
+
+
+def test_a_tie_between_free_flight_fits_is_told_what_would_separate_it():
+    """`run.separate_mimics` reads each tied fit's gravity scale, drag and v0 as the fit applied them
+    (the base's where a fit leaves one unchanged) and the window's last observed frame."""
+    from types import SimpleNamespace
+
+    from sgdr.cameras import Camera
+    from sgdr.discrepancy.run import separate_mimics
+
+    cam = Camera.look_at([3.0, 0.0, 0.5], [0.0, 0.0, 0.5], [0.0, 0.0, 1.0], 40.0, 256, 256)
+    o = SimpleNamespace(
+        asset=SimpleNamespace(anchors=np.zeros((4, 3)) + [0.0, 0.0, 0.5], fps=24.0), seq=SimpleNamespace(cameras=[cam])
+    )
+    ctx = SimpleNamespace(physics=PhysicsConfig())
+    refit = ({"v0": np.array([0.5, 0.0, 0.0]), "gravity": np.array([0.0, 0.0, -9.8])}, {}, {})
+    applied = {
+        "gravity": ("refit", {"gravity_scale": 0.9}, {"v0": np.array([0.5, 0.0, -0.05])}),
+        "air_drag": ("refit", {"air_drag": 1.5}, {}),
+    }
+    out = separate_mimics(["gravity", "air_drag"], applied, refit, ctx, o, {"record": {"frames": [1, 2, 3, 4]}})
+    assert out["candidates"] == ["gravity", "air_drag"] and out["observed_frames"] == 4
+    assert out["free_flight_frames"] is not None and out["free_flight_frames"] >= 1
+    assert out["sideways_speed"] is not None and out["sideways_speed"] > 0

@@ -160,7 +160,7 @@ def test_the_tilt_search_starts_from_the_fitted_offset():
         height = off + 0.004 * tilt  # the ground under the landing point
         return 1e4 * (height - (truth["offset"] + 0.004 * truth["tilt"])) ** 2 + 0.01 * (tilt - truth["tilt"]) ** 2
 
-    ev = SimpleNamespace(d=d, obs_fit="fit", obs_held="held", obs_future=None)
+    ev = SimpleNamespace(d=d, obs_fit="fit", obs_held="held", obs_future=None, obs_time=None)
     cold = fit_candidate(ev, cand, _ctx(), 16)
     warm = fit_candidate(ev, cand, _ctx(), 16, start={"offset": 0.021, "unknown": 1.0})
     assert warm.values["tilt_a_deg"] == pytest.approx(5.0, abs=0.5), warm.values

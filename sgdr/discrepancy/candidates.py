@@ -408,7 +408,7 @@ def fit_candidate(ev: Evaluator, cand: Candidate, ctx: Context, evaluations: int
         settings=settings,
         d_fit=ev.d(settings, ev.obs_fit, repl),
         d_held_out=ev.d(settings, ev.obs_held, repl),
-        d_future=ev.d_or_none(settings, ev.obs_future, repl),
+        d_future=None if ev.obs_future is None else ev.d(settings, ev.obs_future, repl),
         evaluated=evaluated,
-        d_time=ev.d_or_none(settings, ev.obs_time, repl),
+        d_time=None if ev.obs_time is None else ev.d(settings, ev.obs_time, repl),
     )

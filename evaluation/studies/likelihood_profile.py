@@ -23,7 +23,8 @@ from omegaconf import OmegaConf
 import sgdr.backend
 from sgdr.cli import user_errors
 from sgdr.config import compose, validate
-from sgdr.posterior.run import Problem, _rendered_images
+from sgdr.posterior.run import rendered_images
+from sgdr.posterior.sample import Problem
 from sgdr.run_folder import run_asset_and_sequence
 
 STEPS = {
@@ -67,7 +68,7 @@ def profile(cfg, centre: np.ndarray, names: list[str], steps: dict) -> dict:
     pc = cfg.posterior
     _, asset, _, seq = run_asset_and_sequence(Path(pc.run), pc.sequence, cfg.scene_file, "posterior")
     problem = Problem.from_config(asset, pc)
-    images = _rendered_images(cfg, Path(pc.run), asset, seq, problem)
+    images = rendered_images(cfg, Path(pc.run), asset, seq, problem)
     thetas, labels = [centre], [(None, 0.0)]
     for name, offsets in steps.items():
         for d in offsets:

@@ -67,7 +67,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     rollout_all = lambda s: rollout(*common, s, ground, n_all, 1.0 / asset.fps, asset.n_substeps, asset.physics)  # noqa: E731
 
     problem = Problem.from_config(asset, pc)
-    images = _rendered_images(cfg, run_dir, asset, seq, problem) if pc.likelihood == "rendered" else None
+    images = rendered_images(cfg, run_dir, asset, seq, problem) if pc.likelihood == "rendered" else None
     start, design_search = None, None
     if pc.sampler == "surrogate":
         search = _dynamics(run_dir).get("search") or {}
@@ -198,7 +198,7 @@ class RenderedLogProbability(LogProbability):
         return self.images(thetas)
 
 
-def _rendered_images(cfg, run_dir: Path, asset, seq, problem) -> RenderedImages:
+def rendered_images(cfg, run_dir: Path, asset, seq, problem) -> RenderedImages:
     """The rendered likelihood's images at posterior.image_scale (0: the run's own search scale)."""
     pc = cfg.posterior
     scale = int(pc.image_scale) or int(((_dynamics(run_dir).get("search") or {}).get("image_scale")) or 1)
@@ -242,7 +242,7 @@ def _rendered(cfg, run_dir: Path, asset, seq, problem, design_thetas=None, image
     scale is the misfit of the best-fitting of the MAP and `design_thetas` (the surrogate's first
     design, evaluated here once: the sampler's evaluation of it is not rendered again)."""
     pc = cfg.posterior
-    images = images or _rendered_images(cfg, run_dir, asset, seq, problem)
+    images = images or rendered_images(cfg, run_dir, asset, seq, problem)
     scale = images.scorer.image_scale
     map_losses = images(problem.map_theta[None])
     if not np.all(np.isfinite(map_losses)):

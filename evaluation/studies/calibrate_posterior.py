@@ -33,6 +33,7 @@ import numpy as np
 from omegaconf import OmegaConf
 
 import sgdr.backend
+from evaluation.studies.config import split_extra
 from sgdr.cli import user_errors
 from sgdr.config import compose, validate
 from sgdr.posterior.run import run_posterior
@@ -239,8 +240,7 @@ def calibrate(
 
 
 def main(argv: list[str]) -> None:
-    extra = {a.split("=", 1)[0][1:]: a.split("=", 1)[1] for a in argv if a.startswith("+")}
-    overrides = [a for a in argv if not a.startswith("+")]
+    extra, overrides = split_extra(argv)
     with user_errors():
         cfg = OmegaConf.to_object(compose(overrides))
         validate(cfg)

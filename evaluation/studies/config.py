@@ -63,3 +63,10 @@ def validate(cfg) -> None:
     """`sgdr.config.validate` with the studies' sections checked too: one `ConfigError` listing
     every problem, each naming its key. cfg: a composed `StudyConfig` (instance or DictConfig)."""
     sgdr.config.validate(cfg, SECTION_CHECKS)
+
+
+def split_extra(argv: list[str]) -> tuple[dict, list[str]]:
+    """A study driver's arguments: the `+key=value` ones its own (key -> value), the rest config
+    overrides."""
+    extra = {a.split("=", 1)[0][1:]: a.split("=", 1)[1] for a in argv if a.startswith("+")}
+    return extra, [a for a in argv if not a.startswith("+")]

@@ -8,22 +8,34 @@ from sgdr.checks import any_text, at_least, between, choice, dict_of, list_of
 
 # The held-out gain each candidate needs to be named: 1.25 x its largest gain on the seven MPM null
 # cases (no injected effect, seed 0, small, with the base refit), rounded up to 0.05, at least 0.1
-# (docs/discrepancy.md, "Thresholds calibrated on the MPM nulls"). The largest null gains: air_drag
-# 0.242 (chess), gravity 0.089 (cross), ground_plane 0.159 (apple), ground_tilt 0.378 (apple),
-# contact 0.006, plasticity 0.169 (chess), heterogeneous_stiffness 0.144 (banana).
+# (docs/discrepancy.md, "Thresholds calibrated on the MPM nulls"). Recalibrated on 2026-12-05 on the
+# nulls of the current base (the global stage's single stiffness level, held-out time; records at
+# commits 4249404..31346c6): their largest view gains ground_plane 0.211 (banana), ground_tilt 0.332
+# (banana), contact 0.174 (cross), plasticity 0.128 (cross), heterogeneous_stiffness 0.213 (cross).
+# Gravity and drag are fitted on the free-flight window, which the base's stiffness does not reach:
+# they keep the values from the earlier nulls (largest gains air_drag 0.242 on the chess, gravity
+# 0.089 on the cross), above what the current nulls give (0.002 at most).
 MIN_GAIN_BY_CANDIDATE = {
     "air_drag": 0.35,
     "gravity": 0.15,
-    "ground_plane": 0.2,
-    "ground_tilt": 0.5,
-    "contact": 0.1,
-    "plasticity": 0.25,
-    "heterogeneous_stiffness": 0.2,
+    "ground_plane": 0.3,
+    "ground_tilt": 0.45,
+    "contact": 0.25,
+    "plasticity": 0.2,
+    "heterogeneous_stiffness": 0.3,
 }
 
-# The held-out-time gain each fit-window candidate needs (judge "time" or "both"); not yet
-# calibrated on the MPM nulls of the current base: min_time_gain for every candidate until then.
-MIN_TIME_GAIN_BY_CANDIDATE: dict = {}
+# The held-out-time gain each fit-window candidate needs (judge "time" or "both"), by the same rule
+# on the same seven nulls' time gains: ground_plane 0.206 (cross), ground_tilt 0.210 (banana),
+# contact 0.104 (cross), plasticity 0.085 (cross), heterogeneous_stiffness 0.139 (cream). The
+# free-flight candidates are judged on their window's held-out views under every judge.
+MIN_TIME_GAIN_BY_CANDIDATE: dict = {
+    "ground_plane": 0.3,
+    "ground_tilt": 0.3,
+    "contact": 0.15,
+    "plasticity": 0.15,
+    "heterogeneous_stiffness": 0.2,
+}
 
 
 @dataclass

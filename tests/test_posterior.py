@@ -397,6 +397,8 @@ def test_tiny_rendered_posterior_converges_on_a_twin(tiny):
     prof = profile(cfg, centre, names, parse_steps("log10_k_shift:-0.2,0.2"))
     moved = [m["loss"] for m in prof["moved"]["log10_k_shift"]]
     assert prof["centre_loss"] < min(moved), prof
+    assert np.mean(prof["centre_per_frame"]) == pytest.approx(prof["centre_loss"])  # per fit frame, views averaged
+    assert len(prof["moved"]["log10_k_shift"][0]["per_frame"]) == len(prof["centre_per_frame"])
     with pytest.raises(SystemExit, match="not sampled"):
         profile(cfg, centre, names, parse_steps("kappa:0.1"))
     with pytest.raises(SystemExit, match="centre=map.nothing"):

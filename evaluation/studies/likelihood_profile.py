@@ -8,7 +8,8 @@ the scale and views the posterior uses) at a centre and with each sampled parame
 `+centre` is a section of the posterior.json holding one value per sampled parameter (`truth`,
 `map`, or `likelihood.reference`); `+steps=name:a,b,...;name:...` overrides the offsets (the
 defaults below). Prints one JSON object: the centre, its mean loss per view-frame, and per
-parameter the offsets and their losses (docs/posterior.md, "SBC at small").
+parameter the offsets and their losses, each also per fit frame (the mean over the views: how the
+basin narrows as the rollout goes on; docs/posterior.md, "SBC at small").
 """
 
 from __future__ import annotations
@@ -77,10 +78,16 @@ def profile(cfg, centre: np.ndarray, names: list[str], steps: dict) -> dict:
             t[names.index(name)] += d
             thetas.append(t)
             labels.append((name, d))
-    losses = np.asarray(images(np.array(thetas)), float).mean(axis=(1, 2))
-    out = {"centre": dict(zip(names, centre.tolist())), "centre_loss": float(losses[0]), "moved": {}}
-    for (name, d), loss in zip(labels[1:], losses[1:]):
-        out["moved"].setdefault(name, []).append({"offset": d, "loss": float(loss)})
+    per_frame = np.asarray(images(np.array(thetas)), float).mean(axis=2)  # [S, F]: mean over the views
+    losses = per_frame.mean(axis=1)
+    out = {
+        "centre": dict(zip(names, centre.tolist())),
+        "centre_loss": float(losses[0]),
+        "centre_per_frame": per_frame[0].tolist(),
+        "moved": {},
+    }
+    for (name, d), loss, frames in zip(labels[1:], losses[1:], per_frame[1:]):
+        out["moved"].setdefault(name, []).append({"offset": d, "loss": float(loss), "per_frame": frames.tolist()})
     return out
 
 

@@ -50,6 +50,12 @@ class SearchConfig:
     initial_samples: int = 0  # scrambled Sobol points over the whole box scored first; CMA-ES starts at their best
     #                           (0: CMA-ES starts at physics.*_init)
     image_scale: int = 1  # candidates are scored on images downscaled by this (k x k block means)
+    # the search's stages: each scores the rollouts on this share of the fit frames after frame 0 (the
+    # earliest ones), the generations split evenly among them, CMA-ES carried on from one to the next;
+    # the last is 1 (the whole window). On a twin the loss over the first half of the window is a
+    # wide bowl around the truth where the whole window's is a needle on a plateau
+    # (docs/posterior.md, "SBC at small"); [1.0] = one stage
+    frame_schedule: list[float] = field(default_factory=lambda: [1.0])
     images_per_call: int = 200  # rendered and scored together (sgdr.render.splat.render_batch); 1 = one at a time
     top_k: int = 5  # candidates whose futures the report compares (within equivalent_tolerance of the best)
     equivalent_tolerance: float = 0.05  # relative loss within which candidates count as fitting equally well
@@ -139,6 +145,7 @@ SEARCH_CHECKS = {
     "popsize": at_least(2),
     "generations": at_least(1),
     "initial_samples": non_negative("0: CMA-ES starts at physics.*_init"),
+    "frame_schedule": list_of(between(0.0, 1.0, lo_open=True), min_len=1),
     "image_scale": at_least(1),
     "top_k": at_least(1),
     "equivalent_tolerance": non_negative(),

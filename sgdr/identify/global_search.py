@@ -232,6 +232,9 @@ class GlobalSearchResult:
     landscape: Landscape | None = None
     lo: np.ndarray = field(default_factory=lambda: np.zeros(0))
     hi: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # the stages on part of the fit window before the last (recon.search.frame_schedule): per stage
+    # the fit frames scored, its evaluations, its best loss (on those frames) and values
+    stages: list = field(default_factory=list)
 
     def to_json(self) -> dict:
         """Plain values for dynamics.json (the report's landscape section reads them)."""
@@ -250,6 +253,7 @@ class GlobalSearchResult:
             "candidates": self.candidates[order].tolist(),
             "losses": self.losses[order].tolist(),
             "generation": self.generation[order].tolist(),
+            "stages": self.stages,
         }
         if self.landscape is not None:
             out["landscape"] = {
@@ -335,21 +339,31 @@ class PopulationScorer:
             self.model, self.base, self.samples(values), self.ground, n_frames, self.dt, self.n_t, self.physics_cfg
         )
 
-    def __call__(self, values: dict[str, np.ndarray]) -> np.ndarray:
-        """[S] losses of the candidates {name: [S] values}: the mean of `per_image`."""
-        per = self.per_image(values)
+    @property
+    def n_fit_frames(self) -> int:
+        """The fit frames after frame 0 that a candidate is scored on by default."""
+        return len(self.targets) - 1
+
+    def __call__(self, values: dict[str, np.ndarray], frames: int | None = None) -> np.ndarray:
+        """[S] losses of the candidates {name: [S] values}: the mean of `per_image` (over the first
+        `frames` fit frames after frame 0; None: all of them)."""
+        per = self.per_image(values, frames=frames)
         losses = per.reshape(per.shape[0], -1).mean(axis=1)
         return np.where(np.isfinite(losses), losses, UNSTABLE_LOSS)
 
-    def per_image(self, values: dict[str, np.ndarray], retry: bool = False) -> np.ndarray:
+    def per_image(self, values: dict[str, np.ndarray], retry: bool = False, frames: int | None = None) -> np.ndarray:
         """[S, n_fit - 1, n_views] image losses of the candidates, fit frames 1 .. n_fit - 1 (what
         the posterior's rendered likelihood weighs per frame); NaN rows for unstable rollouts.
+        frames: only the first this many fit frames after frame 0 are simulated and scored
+        ([S, frames, n_views]; None: all).
 
         retry: a candidate unstable at n_t is re-run with n_t doubled while physics.retry_on_nan
         and physics.max_substeps allow (the single rollout's remedy; the posterior's rollouts do
         the same), instead of scoring as unstable. The search does not retry: it scores what the
         asset can simulate at the prediction's n_t."""
-        n = len(self.targets)
+        n = len(self.targets) if frames is None else int(frames) + 1
+        if not 2 <= n <= len(self.targets):
+            raise ValueError(f"frames={frames}: the scorer holds {len(self.targets) - 1} fit frames after frame 0")
         run = self.rollout(values, n)
         positions, stable = run.positions, np.asarray(run.stable, bool).copy()
         n_sub = self.n_t
@@ -366,19 +380,19 @@ class PopulationScorer:
         ok = np.flatnonzero(stable)
         if ok.size:
             out[ok] = (
-                self._batched(positions[ok])
+                self._batched(positions[ok], n - 1)
                 if self.images_per_call > 1
-                else self._one_at_a_time(SimpleNamespace(positions=positions), ok)
+                else self._one_at_a_time(SimpleNamespace(positions=positions), ok, n - 1)
             )
         return out
 
-    def _one_at_a_time(self, run, stable) -> np.ndarray:
-        """[K, F, V] losses, one render and one loss per (frame, view)."""
+    def _one_at_a_time(self, run, stable, n_frames: int) -> np.ndarray:
+        """[K, F, V] losses, one render and one loss per (frame, view), frames 1 .. n_frames."""
         t = ad()
-        out = np.zeros((len(stable), len(self.targets) - 1, len(self.cameras)))
+        out = np.zeros((len(stable), n_frames, len(self.cameras)))
         with dr.suspend_grad():
             for i, s in enumerate(stable):
-                for f in range(1, len(self.targets)):
+                for f in range(1, n_frames + 1):
                     x = run.positions[s, f].astype(np.float32)
                     g = posed(self.gaussians, self.binding.apply(t.Array3f(*x.T)))
                     for v, cam in enumerate(self.cameras):
@@ -386,11 +400,11 @@ class PopulationScorer:
                         out[i, f - 1, v] = float(np.asarray(to_numpy(loss)).reshape(-1)[0])
         return out
 
-    def _batched(self, positions: np.ndarray) -> np.ndarray:
+    def _batched(self, positions: np.ndarray, n_frames: int) -> np.ndarray:
         """The same [K, F, V] losses as `_one_at_a_time` (to float rounding) from `render_batch`
         and `image_losses`: about images_per_call images per program (whole frames of all views)."""
         t = ad()
-        n_views, n_frames = len(self.cameras), len(self.targets) - 1
+        n_views = len(self.cameras)
         centres = batched_centres(self.binding, positions[:, 1 : n_frames + 1])  # [K, F, M, 3]
         poses = [(k, f) for k in range(centres.shape[0]) for f in range(n_frames)]
         per_call = max(1, self.images_per_call // n_views)
@@ -427,6 +441,28 @@ def landscape(scorer: PopulationScorer, result: GlobalSearchResult, search_cfg, 
     return Landscape(chosen, spread, spread > float(search_cfg.spread_warning), centres, medoid)
 
 
+def stage_frames(schedule, n_fit_frames: int) -> list[int]:
+    """`recon.search.frame_schedule` (shares of the fit frames after frame 0) -> the number of fit
+    frames each stage scores (at least 1, non-decreasing, the last all of them)."""
+    shares = [float(x) for x in schedule]
+    if not shares or any(not 0.0 < x <= 1.0 for x in shares):
+        raise SearchConfigError(f"recon.search.frame_schedule={list(schedule)}: each share must lie in (0, 1]")
+    if shares[-1] != 1.0 or any(b < a for a, b in zip(shares, shares[1:])):
+        raise SearchConfigError(
+            f"recon.search.frame_schedule={list(schedule)}: the shares must not decrease and the last must be 1 "
+            "(the whole fit window)"
+        )
+    return [max(1, min(n_fit_frames, int(round(x * n_fit_frames)))) for x in shares]
+
+
+def stage_generations(generations: int, n_stages: int) -> list[int]:
+    """The generations split evenly among the stages (the later ones get the remainder), each at
+    least one."""
+    g = max(int(generations), n_stages)
+    base, rest = divmod(g, n_stages)
+    return [base + (1 if i >= n_stages - rest else 0) for i in range(n_stages)]
+
+
 def global_search(
     scorer: PopulationScorer,
     space: SearchSpace,
@@ -439,7 +475,14 @@ def global_search(
     recon.search.initial_samples > 0, from the best of that many scrambled Sobol points over the
     whole box (scored first, generation -1); a population of recon.search.popsize candidates per
     generation, recon.search.generations generations; every candidate scored by `scorer`.
-    Returns every candidate and the best one."""
+
+    With recon.search.frame_schedule = [s_1, ..., 1] the generations are split among stages that
+    score the first s_i of the fit frames (the Sobol points on the first stage's); each later stage
+    first scores the previous stage's best on its window and restarts CMA-ES there with the step
+    size it had reached.
+    Only the last stage's candidates, scored on the whole window, are comparable with each other
+    and with what the posterior evaluates: they are the result's candidates; the earlier stages
+    are summarised in `stages`. Returns every such candidate and the best one."""
     import cma
 
     d = len(space.names)
@@ -448,7 +491,11 @@ def global_search(
     popsize = int(search_cfg.popsize)
     if popsize < 2:
         raise SearchConfigError(f"recon.search.popsize={popsize} must be at least 2")
-    cand, losses, gen = [], [], []
+    n_fit = scorer.n_fit_frames
+    frames = stage_frames(getattr(search_cfg, "frame_schedule", [1.0]), n_fit)
+    gens = stage_generations(int(search_cfg.generations), len(frames))
+    stages = [{"frames": f, "generations": g, "candidates": [], "losses": [], "generation": []}
+              for f, g in zip(frames, gens)]  # fmt: skip
     u0 = space.unit(start)
     n0 = int(search_cfg.initial_samples)
     if n0 > 0:
@@ -456,58 +503,91 @@ def global_search(
         # small population settles in the basin nearest its start; this picks the start among basins
         from scipy.stats import qmc
 
+        first = stages[0]
         u_all = qmc.Sobol(d, scramble=True, seed=int(seed)).random(n0)
         for chunk in range(0, n0, popsize):
             u = u_all[chunk : chunk + popsize]
             values = space.values(u)
-            cand.append(np.stack([values[n] for n in space.names], axis=1))
-            losses.append(scorer(values))
-            gen.append(np.full(u.shape[0], -1))
-        u0 = u_all[int(np.argmin(np.concatenate(losses)))]
-        log.info(
-            "dynamics: global search: %d space-filling samples, best %.5f", n0, float(np.min(np.concatenate(losses)))
-        )
+            first["candidates"].append(np.stack([values[n] for n in space.names], axis=1))
+            first["losses"].append(scorer(values, frames=first["frames"]))
+            first["generation"].append(np.full(u.shape[0], -1))
+        scored = np.concatenate(first["losses"])
+        u0 = u_all[int(np.argmin(scored))]
+        log.info("dynamics: global search: %d space-filling samples, best %.5f", n0, float(np.min(scored)))
     opts = {
         "bounds": [0.0, 1.0],
         "popsize": popsize,
         "seed": int(seed) + 1,  # cma reads 0 as "seed from the clock"
-        "maxiter": int(search_cfg.generations),
+        "maxiter": int(sum(gens)),
         "verbose": -9,
         "tolfun": 0.0,
         "tolx": 1e-6,
     }
     es = cma.CMAEvolutionStrategy(u0.tolist(), float(search_cfg.sigma0), opts)
-    generations = range(int(search_cfg.generations))
+    plan = [(stage, g) for stage in stages for g in range(stage["generations"])]
+    steps = range(len(plan))
     if progress:
         from tqdm import tqdm
 
-        generations = tqdm(generations, desc="dynamics: global search", leave=False)
-    for g in generations:
+        steps = tqdm(steps, desc="dynamics: global search", leave=False)
+    for g in steps:
+        stage = plan[g][0]
+        if g > 0 and stage is not plan[g - 1][0] and plan[g - 1][0]["losses"]:
+            # a new window: its first candidate is the last window's best, and CMA-ES starts again
+            # there with the step it had reached (its mean may sit beside the best on a flat stretch)
+            prev = plan[g - 1][0]
+            c, loss = np.concatenate(prev["candidates"]), np.concatenate(prev["losses"])
+            u_best = space.unit({n: c[int(np.argmin(loss)), k] for k, n in enumerate(space.names)})
+            values = space.values(u_best[None, :])
+            stage["candidates"].append(np.stack([values[n] for n in space.names], axis=1))
+            stage["losses"].append(scorer(values, frames=None if stage["frames"] == n_fit else stage["frames"]))
+            stage["generation"].append(np.full(1, g))
+            sigma = max(float(es.sigma), 1e-3)
+            es = cma.CMAEvolutionStrategy(u_best.tolist(), sigma, {**opts, "maxiter": len(plan) - g})
         if es.stop():
             break
         u = np.asarray(es.ask(), float)
         values = space.values(u)
-        f = scorer(values)
+        whole = stage["frames"] == n_fit
+        f = scorer(values, frames=None if whole else stage["frames"])
         es.tell(list(u), f.tolist())
-        cand.append(np.stack([values[n] for n in space.names], axis=1))
-        losses.append(f)
-        gen.append(np.full(f.size, g))
-        best = float(np.min(np.concatenate(losses)))
-        log.info("dynamics: global search generation %d: best loss %.5f (this generation %.5f)", g, best, f.min())
+        stage["candidates"].append(np.stack([values[n] for n in space.names], axis=1))
+        stage["losses"].append(f)
+        stage["generation"].append(np.full(f.size, g))
+        best = float(np.min(np.concatenate(stage["losses"])))
+        window = "" if len(stages) == 1 else f" (first {stage['frames']} of {n_fit} fit frames)"
+        log.info("dynamics: global search generation %d%s: best loss %.5f (this generation %.5f)", g, window, best,
+                 f.min())  # fmt: skip
         if progress:
-            generations.set_postfix(best=f"{best:.4f}")
-    candidates = np.concatenate(cand)
-    all_losses = np.concatenate(losses)
+            steps.set_postfix(best=f"{best:.4f}")
+    last = stages[-1]
+    if not last["losses"]:  # CMA-ES stopped before the whole window: score its mean there
+        u = np.asarray(es.mean, float)[None, :]
+        values = space.values(u)
+        last["candidates"].append(np.stack([values[n] for n in space.names], axis=1))
+        last["losses"].append(scorer(values))
+        last["generation"].append(np.full(1, len(plan)))
+    candidates = np.concatenate(last["candidates"])
+    all_losses = np.concatenate(last["losses"])
     i = int(np.argmin(all_losses))
+    summary = []
+    for stage in stages[:-1]:
+        if stage["losses"]:
+            c, loss = np.concatenate(stage["candidates"]), np.concatenate(stage["losses"])
+            j = int(np.argmin(loss))
+            best_values = {n: float(c[j, k]) for k, n in enumerate(space.names)}
+            summary.append({"frames": stage["frames"], "n_evaluations": int(loss.size), "best_loss": float(loss[j]),
+                            "best": best_values})  # fmt: skip
     return GlobalSearchResult(
         names=space.names,
         candidates=candidates,
         losses=all_losses,
-        generation=np.concatenate(gen),
+        generation=np.concatenate(last["generation"]),
         best={n: float(candidates[i, j]) for j, n in enumerate(space.names)},
         best_loss=float(all_losses[i]),
         n_substeps=scorer.n_t,
         image_scale=scorer.image_scale,
         lo=space.lo,
         hi=space.hi,
+        stages=summary,
     )

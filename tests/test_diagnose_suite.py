@@ -160,11 +160,18 @@ def test_summary_bars(monkeypatch):
     assert s["named_gain_share_ge_0.3"] == pytest.approx(1 / 3)
     assert s["null_max_gain"] == {"gravity": 0.2, "air_drag": 0.05}
     assert s["failed"] == ["f"] and s["before_base_refit"] == ["g-none"]
+    # the null named gravity, with that candidate's three gains (its future: did the base lack it?)
+    results["b-none"]["candidates"]["gravity"].update(time_gain=0.0, future_gain=-0.4)
+    s = S.summary(results)
+    assert s["null_named"] == [
+        {"id": "b-none", "cause": "gravity", "candidate": "gravity", "gain": 0.2, "time_gain": 0.0, "future_gain": -0.4}
+    ]
     assert "✗" in S.markdown(results)
     # a recalibrated threshold re-decides the recorded gains: b-none's 0.2 no longer names gravity
     monkeypatch.setattr(S, "method_thresholds", lambda method: {"gravity": 0.25, "air_drag": 0.1})
     s = S.summary(results)
     assert s["null_none_share"] == 1.0 and s["injected_named_share"] == pytest.approx(1 / 3)
+    assert s["null_named"] == []
     assert S.redecide(results["c-gravity"]) == "gravity"
 
 

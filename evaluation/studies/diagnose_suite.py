@@ -541,6 +541,10 @@ def summary(results: dict) -> dict:
         # it); within reach: the truth would have passed, the search or the decision missed it
         "missed": misses,
         "null_max_gain": {n: max(g) for n, g in null_gains.items()},
+        # a null is a sequence with nothing injected, not one the base model fits: a cause named there
+        # that also predicts the future better is something the base lacks; one that worsens it is
+        # a false alarm. Both count against the bar.
+        "null_named": [_null_named(r) for r in null if r["cause"] != "none"],
         "failed": sorted(r["id"] for r in results.values() if r.get("status") != "ok"),
         # finished but not counted: before the base refit, or a tilt from the old generator
         "before_base_refit": sorted(
@@ -576,6 +580,16 @@ def _cause_gain(r: dict):
     the offset both stand for ground_plane), or None when none was run."""
     gains = [c["gain"] for n, c in r["candidates"].items() if n in CANDIDATES and CANDIDATES[n].cause == r["expected"]]
     return max(gains) if gains else None
+
+
+def _null_named(r: dict) -> dict:
+    """A null case named with a cause: the named candidate's (the best-gaining one of that cause)
+    held-out-view, held-out-time and future gains."""
+    of_cause = {n: c for n, c in r["candidates"].items() if n in CANDIDATES and CANDIDATES[n].cause == r["cause"]}
+    name = max(of_cause, key=lambda n: of_cause[n]["gain"])
+    c = of_cause[name]
+    return {"id": r["id"], "cause": r["cause"], "candidate": name, "gain": c["gain"], "time_gain": c.get("time_gain"),
+            "future_gain": c.get("future_gain")}  # fmt: skip
 
 
 def markdown(results: dict) -> str:

@@ -544,8 +544,10 @@ def global_search(
             stage["generation"].append(np.full(1, g))
             sigma = max(float(es.sigma), 1e-3)
             es = cma.CMAEvolutionStrategy(u_best.tolist(), sigma, {**opts, "maxiter": len(plan) - g})
-        if es.stop():
-            break
+        if es.stop():  # converged: on to the next window (or done on the last)
+            if stage is stages[-1]:
+                break
+            continue
         u = np.asarray(es.ask(), float)
         values = space.values(u)
         whole = stage["frames"] == n_fit

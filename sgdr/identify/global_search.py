@@ -463,6 +463,13 @@ def stage_generations(generations: int, n_stages: int) -> list[int]:
     return [base + (1 if i >= n_stages - rest else 0) for i in range(n_stages)]
 
 
+def _stage_best(stage: dict, names) -> tuple[dict[str, float], float]:
+    """The best-scoring candidate of a search stage (its values, its loss on the stage's frames)."""
+    c, loss = np.concatenate(stage["candidates"]), np.concatenate(stage["losses"])
+    j = int(np.argmin(loss))
+    return {n: float(c[j, k]) for k, n in enumerate(names)}, float(loss[j])
+
+
 def global_search(
     scorer: PopulationScorer,
     space: SearchSpace,
@@ -535,9 +542,7 @@ def global_search(
         if g > 0 and stage is not plan[g - 1][0] and plan[g - 1][0]["losses"]:
             # a new window: its first candidate is the last window's best, and CMA-ES starts again
             # there with the step it had reached (its mean may sit beside the best on a flat stretch)
-            prev = plan[g - 1][0]
-            c, loss = np.concatenate(prev["candidates"]), np.concatenate(prev["losses"])
-            u_best = space.unit({n: c[int(np.argmin(loss)), k] for k, n in enumerate(space.names)})
+            u_best = space.unit(_stage_best(plan[g - 1][0], space.names)[0])
             values = space.values(u_best[None, :])
             stage["candidates"].append(np.stack([values[n] for n in space.names], axis=1))
             stage["losses"].append(scorer(values, frames=None if stage["frames"] == n_fit else stage["frames"]))
@@ -562,24 +567,18 @@ def global_search(
                  f.min())  # fmt: skip
         if progress:
             steps.set_postfix(best=f"{best:.4f}")
-    last = stages[-1]
-    if not last["losses"]:  # CMA-ES stopped before the whole window: score its mean there
-        u = np.asarray(es.mean, float)[None, :]
-        values = space.values(u)
-        last["candidates"].append(np.stack([values[n] for n in space.names], axis=1))
-        last["losses"].append(scorer(values))
-        last["generation"].append(np.full(1, len(plan)))
+    last = stages[-1]  # never empty: a stage's first generation always runs, and a later stage starts
+    #                    with the previous one's best
     candidates = np.concatenate(last["candidates"])
     all_losses = np.concatenate(last["losses"])
     i = int(np.argmin(all_losses))
     summary = []
     for stage in stages[:-1]:
-        if stage["losses"]:
-            c, loss = np.concatenate(stage["candidates"]), np.concatenate(stage["losses"])
-            j = int(np.argmin(loss))
-            best_values = {n: float(c[j, k]) for k, n in enumerate(space.names)}
-            summary.append({"frames": stage["frames"], "n_evaluations": int(loss.size), "best_loss": float(loss[j]),
-                            "best": best_values})  # fmt: skip
+        best_values, best_loss = _stage_best(stage, space.names)
+        n_eval = int(sum(x.size for x in stage["losses"]))
+        summary.append(
+            {"frames": stage["frames"], "n_evaluations": n_eval, "best_loss": best_loss, "best": best_values}
+        )
     return GlobalSearchResult(
         names=space.names,
         candidates=candidates,

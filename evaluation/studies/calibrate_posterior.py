@@ -134,11 +134,14 @@ def parse_shard(text: str | None) -> tuple[int, int]:
     return i, n
 
 
-def sampler_setup(posterior_cfg, twin_scale: int) -> dict:
-    """What a record's cases must share: the twins' scale and the sampler's settings."""
-    pc = posterior_cfg
+def sampler_setup(cfg, twin_scale: int) -> dict:
+    """What a record's cases must share: the twins' scale, the sampler's settings and, where the
+    design comes from a global search on each twin's images (`posterior.surrogate.search_other_sequence`),
+    that search's settings (`recon.search.*`: its budget and schedule decide which basin is found)."""
+    pc = cfg.posterior
     from dataclasses import asdict
 
+    searched = pc.sampler == "surrogate" and pc.surrogate.search_other_sequence
     return {
         "twin_scale": int(twin_scale),
         "likelihood": pc.likelihood,
@@ -150,6 +153,7 @@ def sampler_setup(posterior_cfg, twin_scale: int) -> dict:
         "n_walkers": int(pc.n_walkers),
         "n_ensembles": int(pc.n_ensembles),
         "parameters": list(pc.parameters),
+        "design_search": asdict(cfg.recon.search) if searched else None,
     }
 
 
@@ -204,7 +208,7 @@ def calibrate(
     out.mkdir(parents=True, exist_ok=True)
     record_file = Path(record_file) if record_file else out / "calibration.json"
     record_file.parent.mkdir(parents=True, exist_ok=True)
-    setup = sampler_setup(cfg.posterior, twin_scale)
+    setup = sampler_setup(cfg, twin_scale)
     with locked_record(record_file, setup):
         pass  # refuses a record of another setup before any work
     names = list(cfg.posterior.parameters)

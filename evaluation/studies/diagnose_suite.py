@@ -561,15 +561,17 @@ def summary(results: dict) -> dict:
     }
 
 
+def _of_cause(rec: dict, cause: str) -> dict:
+    """A record's candidates (name -> its entry) whose cause is `cause` (the tilt and the offset
+    both stand for ground_plane); candidates no longer registered are left out."""
+    return {n: c for n, c in rec["candidates"].items() if n in CANDIDATES and CANDIDATES[n].cause == cause}
+
+
 def truth_reach(rec: dict, thresholds: dict | None = None) -> bool | None:
     """Whether a candidate of the case's expected cause, judged at the injected truth, reaches its
     threshold (the current ones of the record's method); None when none was judged there."""
     thresholds = thresholds or method_thresholds(rec.get("method", "spring_gaus"))
-    gains = [
-        (n, c["truth_gain"])
-        for n, c in rec["candidates"].items()
-        if c.get("truth_gain") is not None and CANDIDATES.get_named(n).cause == rec["expected"]
-    ]
+    gains = [(n, c["truth_gain"]) for n, c in _of_cause(rec, rec["expected"]).items() if c.get("truth_gain") is not None]
     if not gains:
         return None
     return any(g >= thresholds.get(n, DiagnoseConfig.min_gain) for n, g in gains)
@@ -578,14 +580,14 @@ def truth_reach(rec: dict, thresholds: dict | None = None) -> bool | None:
 def _cause_gain(r: dict):
     """The largest held-out gain among a record's candidates of its expected cause (the tilt and
     the offset both stand for ground_plane), or None when none was run."""
-    gains = [c["gain"] for n, c in r["candidates"].items() if n in CANDIDATES and CANDIDATES[n].cause == r["expected"]]
+    gains = [c["gain"] for c in _of_cause(r, r["expected"]).values()]
     return max(gains) if gains else None
 
 
 def _null_named(r: dict) -> dict:
     """A null case named with a cause: the named candidate's (the best-gaining one of that cause)
     held-out-view, held-out-time and future gains."""
-    of_cause = {n: c for n, c in r["candidates"].items() if n in CANDIDATES and CANDIDATES[n].cause == r["cause"]}
+    of_cause = _of_cause(r, r["cause"])
     name = max(of_cause, key=lambda n: of_cause[n]["gain"])
     c = of_cause[name]
     return {"id": r["id"], "cause": r["cause"], "candidate": name, "gain": c["gain"], "time_gain": c.get("time_gain"),

@@ -39,6 +39,17 @@ def test_ranks_and_summary():
     assert summarise(wide, ["a"])["a"]["coverage_50"] == 1.0  # too wide: every truth near the middle
 
 
+def test_the_rank_histograms_uniformity_is_tested_against_its_sampling_error():
+    from evaluation.studies.calibrate_posterior import rank_uniform_p, summarise
+
+    assert rank_uniform_p([2, 2, 2, 2, 2]) == pytest.approx(1.0)
+    assert rank_uniform_p([5, 0, 0, 0, 5]) < 0.01  # piled up at both ends: too narrow
+    assert 0.05 < rank_uniform_p([3, 1, 2, 2, 2]) < 1.0  # a scatter ten cases give by chance
+    assert rank_uniform_p([1, 0, 1, 0, 0]) is None  # fewer cases than bins: no test
+    ends = [{"inside": {"a": False}, "rank": {"a": r}} for r in (0.0, 0.0, 1.0, 1.0, 0.02, 0.99, 1.0, 0.0, 0.0, 1.0)]
+    assert summarise(ends, ["a"])["a"]["rank_uniform_p"] < 0.01
+
+
 def test_a_record_of_another_sampler_setup_is_refused_before_any_work(tmp_path):
     import json
 

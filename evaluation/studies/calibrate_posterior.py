@@ -59,11 +59,24 @@ def sbc_rank(kept: np.ndarray, truth: float) -> float:
     return float(np.mean(kept < truth)) if kept.size else float("nan")
 
 
+def rank_uniform_p(hist) -> float | None:
+    """The p-value of Pearson's chi-square test of a rank histogram against the uniform one (the
+    SBC's "uniform within its sampling error": a small p says the ranks pile up somewhere, e.g. at
+    both ends when the posteriors are too narrow); None with fewer than one case per bin."""
+    from scipy.stats import chisquare
+
+    hist = np.asarray(hist, float)
+    if hist.sum() < hist.size:
+        return None
+    return float(chisquare(hist).pvalue)
+
+
 def summarise(cases: list[dict], names: list[str]) -> dict:
-    """Coverage of the 5-95% interval and the rank histogram per parameter, and the coverage of
-    the central 50% interval from the ranks (a rank in [0.25, 0.75]): 0.5 when calibrated, above
-    it when the posteriors are too wide (conservative), below when too narrow; with the 90%
-    coverage alone a too-wide posterior looks perfect."""
+    """Coverage of the 5-95% interval and the rank histogram per parameter (with its chi-square
+    p-value against the uniform one), and the coverage of the central 50% interval from the ranks
+    (a rank in [0.25, 0.75]): 0.5 when calibrated, above it when the posteriors are too wide
+    (conservative), below when too narrow; with the 90% coverage alone a too-wide posterior looks
+    perfect."""
     out = {}
     for n in names:
         inside = [c["inside"][n] for c in cases if n in c["inside"]]
@@ -74,6 +87,7 @@ def summarise(cases: list[dict], names: list[str]) -> dict:
             "coverage_90": float(np.mean(inside)) if inside else None,
             "coverage_50": float(np.mean((ranks >= 0.25) & (ranks <= 0.75))) if ranks.size else None,
             "rank_histogram": hist.tolist(),
+            "rank_uniform_p": rank_uniform_p(hist),
         }
     return out
 
@@ -96,6 +110,8 @@ def plot_ranks(summary: dict, path: Path) -> Path:
         title = n if cov is None else f"{n}\n90% interval covers {cov:.0%}"
         if half is not None:
             title += f", 50%: {half:.0%}"
+        if summary[n].get("rank_uniform_p") is not None:
+            title += f"\nuniform ranks: p = {summary[n]['rank_uniform_p']:.2f}"
         ax.set_title(title, fontsize=9)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -58,8 +58,8 @@ def test_the_surrogate_posterior_matches_a_known_gaussian_with_few_true_evaluati
     start = design(problem, np.zeros((0, 2)), sc.n_initial, sc.n_sobol, seed=0)
     assert start.shape == (33, 2) and np.allclose(start[0], problem.map_theta)
 
-    def chains_of(lp):
-        return run_ensembles(lp, problem, 10, sc.chain_steps, 4, 0.05, seed=0, move="de", space="logit")
+    def chains_of(lp, start):
+        return run_ensembles(lp, problem, 10, sc.chain_steps, 4, 0.05, seed=0, move="de", space="logit", start=start)
 
     chains, _, acc, record = sample_with_surrogate(log_like, problem, start, sc, chains_of, seed=0)
     assert record.validated and record.rounds[-1]["inside_95"] >= 0.9 and record.rounds[-1]["khat"] <= 0.7
@@ -82,12 +82,42 @@ def test_the_check_fails_a_surrogate_that_does_not_stand_for_the_likelihood():
     sc = SurrogateConfig(n_initial=0, n_sobol=8, n_validate=24, max_rounds=1, chain_steps=300)
     start = design(problem, np.zeros((0, 2)), 0, 8, seed=1)
 
-    def chains_of(lp):
-        return run_ensembles(lp, problem, 10, sc.chain_steps, 4, 0.05, seed=0, move="de", space="logit")
+    def chains_of(lp, start):
+        return run_ensembles(lp, problem, 10, sc.chain_steps, 4, 0.05, seed=0, move="de", space="logit", start=start)
 
     *_, record = sample_with_surrogate(narrow, problem, start, sc, chains_of, seed=0)
     assert not record.validated and record.rounds[0]["inside_95"] < 0.9
     assert psis_khat(np.zeros(10)) < 0.7  # equal weights: a perfect surrogate
+
+
+def test_walkers_start_where_the_evaluations_are_highest_not_at_the_map():
+    """A narrow peak far from the MAP on a plateau, in four parameters (a twin's likelihood seen
+    from the asset's MAP): walkers started around the MAP wander the plateau; started from the
+    evaluations (`design_start`) they sample the peak."""
+    from sgdr.posterior.surrogate import design_start
+
+    problem = Problem(list("abcd"), np.zeros(4), np.ones(4), np.full(4, 0.2))
+    peak, sd = np.array([0.7, 0.6, 0.75, 0.65]), np.array([0.005, 0.01, 0.008, 0.02])
+
+    def needle(thetas):
+        thetas = np.atleast_2d(thetas)
+        return np.maximum(-0.5 * np.sum(((thetas - peak) / sd) ** 2, axis=1), -60.0)
+
+    rng = np.random.default_rng(0)
+    evaluated = np.concatenate([design(problem, np.zeros((0, 4)), 0, 16, seed=0), peak + sd * rng.normal(size=(16, 4))])
+    start = design_start(evaluated, needle(evaluated), problem, within=10.0)
+    assert np.all(start.spread < 2 * sd) and np.all(start.spread >= 1e-3)
+    p0 = start(40, np.random.default_rng(1))
+    assert np.all(np.abs(p0 - peak) < 6 * sd)
+    runs = {}
+    for name, s in (("design", start), ("map", None)):
+        chains, _, _ = run_ensembles(needle, problem, 16, 800, 2, 0.05, seed=0, move="de", space="logit", start=s)
+        runs[name] = chains[:, 400:].reshape(-1, 4)
+    assert np.allclose(runs["design"].mean(axis=0), peak, atol=0.5 * sd)
+    assert np.allclose(runs["design"].std(axis=0), sd, rtol=0.4)
+    assert np.mean(np.all(np.abs(runs["map"] - peak) < 3 * sd, axis=1)) < 0.5  # lost on the plateau
+    with pytest.raises(ValueError, match="no stable evaluation"):
+        design_start(evaluated[:2], np.array([-np.inf, -np.inf]), problem, 10.0)
 
 
 def test_the_design_keeps_candidates_inside_the_prior_best_first():
@@ -186,8 +216,8 @@ def test_a_rough_likelihood_is_sampled_smoothed_and_the_roughness_is_measured():
     sc = SurrogateConfig(n_initial=0, n_sobol=48, n_validate=32, max_rounds=5, chain_steps=1500)
     start = design(problem, np.zeros((0, 2)), 0, sc.n_sobol, seed=0)
 
-    def chains_of(lp):
-        return run_ensembles(lp, problem, 10, sc.chain_steps, 4, 0.05, seed=0, move="de", space="logit")
+    def chains_of(lp, start):
+        return run_ensembles(lp, problem, 10, sc.chain_steps, 4, 0.05, seed=0, move="de", space="logit", start=start)
 
     chains, _, _, record = sample_with_surrogate(rough, problem, start, sc, chains_of, seed=0)
     assert record.validated

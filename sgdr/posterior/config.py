@@ -86,6 +86,7 @@ SURROGATE_CHECKS = {
     "clip": positive(),
     "inside_min": between(0.0, 1.0, lo_open=True),
     "search_other_sequence": choice((True, False)),
+    "start_within": positive(),
 }
 
 CHECKS: dict[str, Check] = {

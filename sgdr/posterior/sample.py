@@ -177,10 +177,13 @@ def run_ensembles(
     progress=False,
     move="stretch",
     space="box",
+    start=None,
 ):
     """(chains [E, steps, W, D], log_probs [E, steps, W], acceptance [E, W]) from `n_ensembles`
     independent emcee ensembles, seeds seed, seed+1, ...; move: `posterior.moves`; space:
-    `posterior.space` ("box": θ itself; "logit": `LogitSpace`, chains and log p returned in θ)."""
+    `posterior.space` ("box": θ itself; "logit": `LogitSpace`, chains and log p returned in θ);
+    start: (n_walkers, rng) -> [W, D] initial walkers in θ (e.g. the surrogate's `design_start`),
+    default `initial_walkers` around the MAP."""
     import emcee
 
     if space not in ("box", "logit"):
@@ -191,7 +194,10 @@ def run_ensembles(
     chains, lps, acc = [], [], []
     for e in range(int(n_ensembles)):
         rng = np.random.default_rng(int(seed) * 1000 + e)
-        p0 = initial_walkers(problem, int(n_walkers), float(init_ball), rng)
+        if start is None:
+            p0 = initial_walkers(problem, int(n_walkers), float(init_ball), rng)
+        else:
+            p0 = start(int(n_walkers), rng)
         if mapped:
             p0 = mapped.to_z(p0)
         sampler = emcee.EnsembleSampler(int(n_walkers), len(problem.names), target, vectorize=True, moves=moves(move))

@@ -63,6 +63,9 @@ class SurrogateConfig:
     # (the identification's stage, recon.search.*) for the design's candidates: the run's population
     # describes the run's sequence only; False: the run's population for any sequence
     search_other_sequence: bool = True
+    # the walkers start from the true evaluations so far, drawn with weights exp(log L - max) and
+    # spread by half the spread of those within `start_within` nats of the best (`design_start`)
+    start_within: float = 10.0
 
 
 @dataclass
@@ -74,6 +77,7 @@ class SurrogateRecord:
     rounds: list = field(default_factory=list)  # per round: n_design, khat, rmse, max_abs, seconds
     validated: bool = False
     surrogate: GPSurrogate | None = None  # the last round's (the validated one when validated)
+    start: object = None  # the last round's walker starter (`design_start`)
 
     def to_json(self) -> dict:
         best = int(np.argmax(self.log_like)) if self.log_like.size else -1
@@ -171,6 +175,33 @@ def design(problem, candidates: np.ndarray, n_initial: int, n_sobol: int, seed: 
     return np.concatenate(parts)
 
 
+def design_start(thetas: np.ndarray, log_like: np.ndarray, problem, within: float):
+    """A walker starter (n_walkers, rng) -> [W, D] from the true evaluations so far: each walker an
+    evaluated θ drawn with weight exp(log L - max) (the posterior restricted to what was evaluated),
+    moved by N(0, (s/2)^2), s the per-parameter spread of the evaluations within `within` nats of the
+    best (at least 1e-3 of the prior width), clipped inside the prior. So the walkers start where the
+    likelihood is, at its scale: the MAP and a fixed share of the prior width (`posterior.init_ball`)
+    put them on a plateau when the peak is narrow or lies elsewhere (a twin's: the asset's MAP is the
+    run's fit, not the twin's), and on a plateau the ensemble never finds it."""
+    thetas = np.asarray(thetas, float)
+    ll = np.where(np.isfinite(log_like), np.asarray(log_like, float), -np.inf)
+    if not np.isfinite(ll).any():
+        raise ValueError("posterior surrogate: no stable evaluation to start the walkers from")
+    w = np.exp(ll - ll.max())
+    w /= w.sum()
+    width = problem.high - problem.low
+    top = thetas[ll >= ll.max() - float(within)]
+    spread = np.maximum(0.5 * top.std(axis=0) if len(top) >= 2 else 0.0, 1e-3 * width)
+
+    def start(n_walkers: int, rng) -> np.ndarray:
+        p0 = thetas[rng.choice(len(thetas), size=int(n_walkers), p=w)]
+        p0 = p0 + spread * rng.standard_normal(p0.shape)
+        return np.clip(p0, problem.low + 1e-3 * width, problem.high - 1e-3 * width)
+
+    start.spread = spread
+    return start
+
+
 def psis_khat(log_weights: np.ndarray) -> float:
     """ArviZ's Pareto k̂ of importance log-weights (inf when fewer than 2 are finite, 0 when all
     are equal). A draw whose true likelihood is -inf (an unstable rollout) carries weight 0 and
@@ -193,8 +224,9 @@ def sample_with_surrogate(true_log_like, problem, start: np.ndarray, sc: Surroga
                           progress: bool = False):  # fmt: skip
     """(chains [E, steps, W, D], log_probs, acceptance, SurrogateRecord) by the module docstring's
     steps. true_log_like(thetas [S, D]) -> [S] (batched, -inf where unstable); start: the first
-    design (`design`); run_chains(log_prob) -> (chains, log_probs, acceptance), e.g.
-    `run_ensembles` with the posterior's settings."""
+    design (`design`); run_chains(log_prob, start) -> (chains, log_probs, acceptance), e.g.
+    `run_ensembles` with the posterior's settings, its walkers from `start` (`design_start` of the
+    true evaluations so far; kept in the record as `record.start`)."""
     rng = np.random.default_rng(int(seed))
     t0 = time.time()
     thetas = np.asarray(start, float)
@@ -206,7 +238,8 @@ def sample_with_surrogate(true_log_like, problem, start: np.ndarray, sc: Surroga
     for r in range(int(sc.max_rounds)):
         t_round = time.time()
         surrogate = GPSurrogate(problem.low, problem.high, sc.clip, seed + r).fit(record.thetas, record.log_like)
-        chains, log_probs, acceptance = run_chains(surrogate)
+        record.start = design_start(record.thetas, record.log_like, problem, sc.start_within)
+        chains, log_probs, acceptance = run_chains(surrogate, record.start)
         pool = chains[:, chains.shape[1] // 2 :].reshape(-1, chains.shape[-1])
         draws = pool[rng.choice(len(pool), size=min(int(sc.n_validate), len(pool)), replace=False)]
         truth = np.asarray(true_log_like(draws), float)

@@ -86,6 +86,20 @@ def test_the_truth_changes_the_motion_and_nothing_else_does(asset_dir, tmp_path)
     assert json.loads((tmp_path / "base" / "gt" / "effects.json").read_text()) == {}
 
 
+def test_a_noisy_twin_has_the_stated_noise_in_its_colours_and_a_clean_alpha(asset_dir, tmp_path):
+    clean = load_sequence(twin_sequence(asset_dir, tmp_path / "clean", {}))
+    noisy = load_sequence(twin_sequence(asset_dir, tmp_path / "noisy", {}, image_noise=0.05, noise_seed=1))
+    again = load_sequence(twin_sequence(asset_dir, tmp_path / "again", {}, image_noise=0.05, noise_seed=1))
+    a, b = clean.image(1, 3), noisy.image(1, 3)
+    assert np.array_equal(b, again.image(1, 3))  # seeded
+    assert np.allclose(a[..., 3], b[..., 3], atol=1 / 255)
+    diff = (b[..., :3] - a[..., :3])[(a[..., :3] > 0.2) & (a[..., :3] < 0.8)]  # away from the clip at 0 and 1
+    assert diff.std() == pytest.approx(0.05, rel=0.15) and abs(diff.mean()) < 0.01
+    assert noisy.gt_params()["image_noise"] == 0.05 and clean.gt_params()["image_noise"] == 0.0
+    with pytest.raises(ValueError, match="image_noise"):
+        twin_sequence(asset_dir, tmp_path / "bad", {}, image_noise=-0.1)
+
+
 def test_bad_truths_are_refused(asset_dir):
     asset = load_asset(asset_dir)
     with pytest.raises(ValueError, match="unknown keys"):

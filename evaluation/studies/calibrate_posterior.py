@@ -15,8 +15,10 @@ converged, τ, R-hat, the asset's digest; per parameter: coverage and the rank h
 cases and over the converged ones) and `<out>/ranks.png`; the last line printed is one JSON
 object with the coverages. Cases already in the record are kept (resumable over sittings; a
 record written with another sampler setup is refused). `+twin_scale=s` renders the twins s
-times finer than the asset's cameras. `+shard=i/n` runs only the cases with case % n == i, so
-that n processes (one per core) share one record: each case is merged into it under a file lock.
+times finer than the asset's cameras; `+twin_noise=σ` adds Gaussian noise of that standard
+deviation to the twins' colours (seeded by the case: data of the kind the likelihood models).
+`+shard=i/n` runs only the cases with case % n == i, so that n processes (one per core) share one
+record: each case is merged into it under a file lock.
 """
 
 from __future__ import annotations
@@ -150,7 +152,7 @@ def parse_shard(text: str | None) -> tuple[int, int]:
     return i, n
 
 
-def sampler_setup(cfg, twin_scale: int) -> dict:
+def sampler_setup(cfg, twin_scale: int, twin_noise: float = 0.0) -> dict:
     """What a record's cases must share: the twins' scale, the sampler's settings and, where the
     design comes from a global search on each twin's images (`posterior.surrogate.search_other_sequence`),
     that search's settings (`recon.search.*`: its budget and schedule decide which basin is found)."""
@@ -160,6 +162,7 @@ def sampler_setup(cfg, twin_scale: int) -> dict:
     searched = pc.sampler == "surrogate" and pc.surrogate.search_other_sequence
     return {
         "twin_scale": int(twin_scale),
+        **({"twin_noise": float(twin_noise)} if twin_noise else {}),  # absent without: older records stand
         "likelihood": pc.likelihood,
         "sampler": pc.sampler,
         "surrogate": asdict(pc.surrogate) if pc.sampler == "surrogate" else None,
@@ -173,7 +176,7 @@ def sampler_setup(cfg, twin_scale: int) -> dict:
     }
 
 
-def run_case(cfg, case: int, asset_dir: Path, digest: str, out: Path, twin_scale: int) -> dict:
+def run_case(cfg, case: int, asset_dir: Path, digest: str, out: Path, twin_scale: int, twin_noise: float = 0.0) -> dict:
     """One case: a truth drawn from the prior, its twin rendered from the asset (`digest`: its
     asset.json's), the posterior on the twin's images; the record's entry (truth, median, 5%, 95%,
     inside, rank, diagnostics)."""
@@ -181,7 +184,8 @@ def run_case(cfg, case: int, asset_dir: Path, digest: str, out: Path, twin_scale
     names = list(pc.parameters)
     truth = draw_truth(pc.priors, names, case)
     case_dir = out / f"case_{case:03d}"
-    twin = twin_sequence(asset_dir, case_dir / "twin", truth, cfg.render, image_scale=int(twin_scale))
+    twin = twin_sequence(asset_dir, case_dir / "twin", truth, cfg.render, image_scale=int(twin_scale),
+                         image_noise=float(twin_noise), noise_seed=case)  # fmt: skip
     case_cfg = replace(
         cfg,
         tracking=replace(cfg.tracking, enabled=False),
@@ -216,6 +220,7 @@ def calibrate(
     twin_scale: int = 1,
     record_file: Path | None = None,
     shard: tuple[int, int] = (0, 1),
+    twin_noise: float = 0.0,
 ) -> dict:
     """`n_cases` twins of `posterior.run`'s asset, each rendered `twin_scale` times finer than its
     cameras, and their posteriors; resumable (cases in `record_file`, default
@@ -224,7 +229,7 @@ def calibrate(
     out.mkdir(parents=True, exist_ok=True)
     record_file = Path(record_file) if record_file else out / "calibration.json"
     record_file.parent.mkdir(parents=True, exist_ok=True)
-    setup = sampler_setup(cfg, twin_scale)
+    setup = sampler_setup(cfg, twin_scale, twin_noise)
     with locked_record(record_file, setup):
         pass  # refuses a record of another setup before any work
     names = list(cfg.posterior.parameters)
@@ -236,7 +241,7 @@ def calibrate(
         with locked_record(record_file, setup) as record:
             if case in {c["case"] for c in record["cases"]}:
                 continue
-        entry = run_case(cfg, case, asset_dir, digest, out, twin_scale)
+        entry = run_case(cfg, case, asset_dir, digest, out, twin_scale, twin_noise)
         with locked_record(record_file, setup) as record:
             record["cases"] = sorted(
                 [c for c in record["cases"] if c["case"] != case] + [entry], key=lambda c: c["case"]
@@ -274,6 +279,7 @@ def main(argv: list[str]) -> None:
             twin_scale=int(extra.get("twin_scale", 1)),
             record_file=record_file,
             shard=parse_shard(extra.get("shard")),
+            twin_noise=float(extra.get("twin_noise", 0.0)),
         )
     summary = {n: s["coverage_90"] for n, s in record["summary"].items()}
     conv = {n: s["coverage_90"] for n, s in record["summary_converged"].items()}

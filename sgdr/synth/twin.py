@@ -60,6 +60,8 @@ def twin_sequence(
     physics: dict | None = None,
     fields: dict | None = None,
     image_scale: int = 1,
+    image_noise: float = 0.0,
+    noise_seed: int = 0,
 ) -> Path:
     """Simulate the asset in `asset_dir` with `truth`, render every camera and frame, write an
     sgdr-layout sequence to `out`; returns `out`. render_cfg: `RenderConfig` (default: its
@@ -69,7 +71,11 @@ def twin_sequence(
     asset's; the effect is in gt/effects.json). fields: identified values replaced outright, e.g.
     {"log10_k": [N_A]} for a stiffness field of another shape (a heterogeneity injected into
     the twin; recorded in gt/effects.json). image_scale: the twin's images s times finer than the
-    asset's cameras (`upscaled`; a likelihood that sees more, e.g. a tiny asset's calibration)."""
+    asset's cameras (`upscaled`; a likelihood that sees more, e.g. a tiny asset's calibration).
+    image_noise: the standard deviation of Gaussian noise added to the colour channels (values in
+    [0, 1], then clipped; the alpha stays clean), seeded by `noise_seed`: a camera's noise, so that
+    a posterior's calibration is measured on data of the kind its likelihood models (recorded in
+    gt/params.json)."""
 
     asset = load_asset(asset_dir)
     true_physics = replace(asset.physics, **(physics or {}))
@@ -100,6 +106,12 @@ def twin_sequence(
         progress,
     )
     images = np.transpose(pred.images.astype(np.float32) / 255.0, (1, 0, 2, 3, 4))  # [V, T, H, W, 4]
+    if image_noise < 0:
+        raise ValueError(f"twin image_noise={image_noise}: a standard deviation, >= 0")
+    if image_noise > 0:
+        rng = np.random.default_rng([int(noise_seed), 7])
+        noisy = images[..., :3] + rng.normal(0.0, float(image_noise), images[..., :3].shape).astype(np.float32)
+        images[..., :3] = np.clip(noisy, 0.0, 1.0)
     plain = {k: (np.asarray(v).tolist() if np.ndim(v) else float(v)) for k, v in values.items()}
     return write_sequence(
         out,
@@ -119,6 +131,7 @@ def twin_sequence(
             "values": {k: v for k, v in plain.items() if k != "log10_k"},
             "log10_k_mean": float(np.mean(values["log10_k"])),
             "n_substeps": int(pred.n_substeps),
+            "image_noise": float(image_noise),
         },
         gt_effects=_effects(physics or {}, fields or {}),
     )

@@ -17,7 +17,7 @@ its ground is the asset's contact plane (the plane the anchors touch). Reconstru
 with the pipeline therefore needs `recon.contact_margin=0` to stay in the model class (the
 pipeline raises the recorded ground by the Gaussians' median scale otherwise).
 `gt/particles_<f>.npy` hold the bound Gaussian centres (what the evaluation scores against),
-`gt/params.json` {"twin": true, "asset": ..., "truth": {...}, "values": {...}}.
+`gt/params.json` {"twin": true, "asset": ..., "truth": {...}, "values": {...}, "image_noise": σ}.
 """
 
 from __future__ import annotations

@@ -20,7 +20,8 @@ smooth enough between its basins for a surrogate (four parameters, one number ea
               fixed small, and the surrogate's mean is a smoothed log L;
   3. sample   emcee ensembles (`sgdr.posterior.sample.run_ensembles`, the same moves, space and
               convergence criteria as the direct sampler) on the surrogate's mean, `chain_steps`
-              long: cheap, so the chains are many τ long;
+              long: cheap, so the chains are many τ long; their walkers start from the true
+              evaluations so far (`design_start`), not around the MAP: where the likelihood is;
   4. check    `n_validate` draws of those chains are evaluated with the true likelihood; the
               surrogate stands for it when at least `inside_min` of them lie in its 95% predictive
               interval (mean ± 1.96 sd, the roughness included: the emulator check of Bastos &

@@ -571,7 +571,9 @@ def truth_reach(rec: dict, thresholds: dict | None = None) -> bool | None:
     """Whether a candidate of the case's expected cause, judged at the injected truth, reaches its
     threshold (the current ones of the record's method); None when none was judged there."""
     thresholds = thresholds or method_thresholds(rec.get("method", "spring_gaus"))
-    gains = [(n, c["truth_gain"]) for n, c in _of_cause(rec, rec["expected"]).items() if c.get("truth_gain") is not None]
+    gains = [
+        (n, c["truth_gain"]) for n, c in _of_cause(rec, rec["expected"]).items() if c.get("truth_gain") is not None
+    ]
     if not gains:
         return None
     return any(g >= thresholds.get(n, DiagnoseConfig.min_gain) for n, g in gains)

@@ -85,7 +85,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     surrogate = None
     if pc.sampler == "surrogate":
         chains, log_probs, acceptance, surrogate = sample_with_surrogate(
-            log_prob, problem, start, pc.surrogate, lambda lp, start: run_chains(lp, pc.surrogate.chain_steps, start), cfg.seed,
+            log_prob, problem, start, pc.surrogate, lambda lp, walkers: run_chains(lp, pc.surrogate.chain_steps, walkers), cfg.seed,
             progress,
         )  # fmt: skip
     else:

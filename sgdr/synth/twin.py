@@ -77,6 +77,8 @@ def twin_sequence(
     a posterior's calibration is measured on data of the kind its likelihood models (recorded in
     gt/params.json)."""
 
+    if image_noise < 0:
+        raise ValueError(f"twin image_noise={image_noise}: a standard deviation, >= 0")
     asset = load_asset(asset_dir)
     true_physics = replace(asset.physics, **(physics or {}))
     values = twin_values(asset, truth)
@@ -106,8 +108,6 @@ def twin_sequence(
         progress,
     )
     images = np.transpose(pred.images.astype(np.float32) / 255.0, (1, 0, 2, 3, 4))  # [V, T, H, W, 4]
-    if image_noise < 0:
-        raise ValueError(f"twin image_noise={image_noise}: a standard deviation, >= 0")
     if image_noise > 0:
         rng = np.random.default_rng([int(noise_seed), 7])
         noisy = images[..., :3] + rng.normal(0.0, float(image_noise), images[..., :3].shape).astype(np.float32)

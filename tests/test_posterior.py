@@ -376,6 +376,8 @@ def test_tiny_rendered_posterior_converges_on_a_twin(tiny):
     # the twin is not the run's sequence: its design came from a global search on the twin's images
     found = record["sampler"]["design_search"]
     assert found is not None and found["n_evaluations"] > 0, found
+    kept = json.loads((out / "design_search.json").read_text())  # kept for a rerun on this twin
+    assert kept["search"]["best_loss"] == pytest.approx(found["best_loss"])
     # the reference (the best-fitting design point) is the search's: measured 0.24 for the truth's 0.2
     assert abs(lk["reference"]["log10_k_shift"] - TRUE_SHIFT) < 0.12, lk["reference"]
     assert abs(lk["reference"]["log10_k_shift"] - TRUE_SHIFT) < abs(TRUE_SHIFT), lk["reference"]

@@ -113,3 +113,53 @@ def test_hit_frame():
     anchors = np.stack([np.array([[0.0, 0.0, h], [0.1, 0.1, h + 0.1]]) for h in z])
     assert hit_frame(anchors, np.zeros(3), [0, 0, 1]) == 2
     assert hit_frame(anchors[2:], np.zeros(3), [0, 0, 1]) == 1  # in contact from the start
+
+
+def test_a_design_search_is_kept_and_reused_only_for_the_same_sequence_and_settings(asset_dir, tmp_path):
+    from dataclasses import replace
+
+    from omegaconf import OmegaConf
+
+    from sgdr.config import compose
+    from sgdr.posterior.run import cached_search, search_key
+
+    cfg = OmegaConf.to_object(compose(["preset=tiny"]))
+    seq = twin_sequence(asset_dir, tmp_path / "twin", {})
+    calls = []
+
+    def search(value):
+        def run():
+            calls.append(value)
+            return {"names": ["log10_k"], "candidates": [[value]], "losses": [0.1]}
+
+        return run
+
+    path = tmp_path / "posterior" / "design_search.json"
+    key = search_key(cfg, asset_dir, seq)
+    assert cached_search(path, key, search(3.0))["candidates"] == [[3.0]]
+    assert cached_search(path, key, search(4.0))["candidates"] == [[3.0]] and calls == [3.0]  # kept
+    # another search budget, another sequence's images: searched again
+    more = replace(
+        cfg, recon=replace(cfg.recon, search=replace(cfg.recon.search, generations=cfg.recon.search.generations + 1))
+    )
+    assert search_key(more, asset_dir, seq) != key
+    noisy = twin_sequence(asset_dir, tmp_path / "noisy", {}, image_noise=0.05)
+    assert search_key(cfg, asset_dir, noisy) != key
+    assert cached_search(path, search_key(cfg, asset_dir, noisy), search(5.0))["candidates"] == [[5.0]]
+    assert calls == [3.0, 5.0]
+    path.write_text("{not json")  # a file cut short by a kill: searched again
+    assert cached_search(path, key, search(6.0))["candidates"] == [[6.0]]
+
+
+def test_a_resumed_calibration_case_keeps_its_twin_only_when_truth_scale_and_noise_match(asset_dir, tmp_path):
+    from evaluation.studies.calibrate_posterior import same_twin
+
+    truth = {"friction": 0.3}
+    twin = twin_sequence(asset_dir, tmp_path / "twin", truth, image_noise=0.02, noise_seed=4)
+    assert same_twin(twin, asset_dir, truth, 1, 0.02)
+    assert not same_twin(twin, asset_dir, {"friction": 0.31}, 1, 0.02)
+    assert not same_twin(twin, asset_dir, truth, 2, 0.02)
+    assert not same_twin(twin, asset_dir, truth, 1, 0.0)
+    assert not same_twin(tmp_path / "missing", asset_dir, truth, 1, 0.02)
+    (twin / "sequence.json").unlink()  # written last: a twin cut short is rendered again
+    assert not same_twin(twin, asset_dir, truth, 1, 0.02)

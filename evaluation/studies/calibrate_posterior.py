@@ -176,6 +176,23 @@ def sampler_setup(cfg, twin_scale: int, twin_noise: float = 0.0) -> dict:
     }
 
 
+def same_twin(twin: Path, asset_dir: Path, truth: dict, twin_scale: int, twin_noise: float) -> bool:
+    """Whether `twin` is a finished twin sequence (its sequence.json, written last) of `asset_dir`
+    with this truth, scale and noise (gt/params.json): a resumed case reuses it, so that its posterior
+    finds the design search it kept (`design_search.json`, keyed by the twin's files)."""
+    try:
+        gt = json.loads((twin / "gt" / "params.json").read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return False
+    return (
+        (twin / "sequence.json").exists()
+        and gt.get("asset") == str(Path(asset_dir).resolve())
+        and gt.get("truth") == json.loads(json.dumps(truth))
+        and int(gt.get("image_scale", 1)) == int(twin_scale)
+        and float(gt.get("image_noise", 0.0)) == float(twin_noise)
+    )
+
+
 def run_case(cfg, case: int, asset_dir: Path, digest: str, out: Path, twin_scale: int, twin_noise: float = 0.0) -> dict:
     """One case: a truth drawn from the prior, its twin rendered from the asset (`digest`: its
     asset.json's), the posterior on the twin's images; the record's entry (truth, median, 5%, 95%,
@@ -184,8 +201,12 @@ def run_case(cfg, case: int, asset_dir: Path, digest: str, out: Path, twin_scale
     names = list(pc.parameters)
     truth = draw_truth(pc.priors, names, case)
     case_dir = out / f"case_{case:03d}"
-    twin = twin_sequence(asset_dir, case_dir / "twin", truth, cfg.render, image_scale=int(twin_scale),
-                         image_noise=float(twin_noise), noise_seed=case)  # fmt: skip
+    twin = case_dir / "twin"
+    if not same_twin(
+        twin, asset_dir, truth, twin_scale, twin_noise
+    ):  # a resumed case keeps its twin (and its design search)
+        twin_sequence(asset_dir, twin, truth, cfg.render, image_scale=int(twin_scale),
+                      image_noise=float(twin_noise), noise_seed=case)  # fmt: skip
     case_cfg = replace(
         cfg,
         tracking=replace(cfg.tracking, enabled=False),

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sgdr.digest import file_hash, key_hash
 from sgdr.evaluate.score import strict_json
 from sgdr.observe.silhouette import CentreMap, discrepancy, observation
 from sgdr.physics import Ground
@@ -39,7 +40,7 @@ from sgdr.posterior.rollouts import ROLLOUTS
 from sgdr.posterior.sample import LogProbability, Problem, diagnose, headline, kept_samples, run_ensembles
 from sgdr.posterior.surrogate import design, sample_with_surrogate
 from sgdr.report.html import add_section
-from sgdr.run_folder import run_asset_and_sequence, run_sequence
+from sgdr.run_folder import run_asset_and_sequence, run_sequence, sequence_digest
 
 log = logging.getLogger(__name__)
 
@@ -72,7 +73,11 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
     if pc.sampler == "surrogate":
         search = _dynamics(run_dir).get("search") or {}
         if search.get("candidates") and pc.surrogate.search_other_sequence and not _own_sequence(run_dir, seq_dir):
-            search = design_search = search_sequence(cfg, asset, seq, images, progress)
+            search = design_search = cached_search(
+                out / "design_search.json",
+                search_key(cfg, asset_dir, seq_dir),
+                lambda: search_sequence(cfg, asset, seq, images, progress),
+            )
         start = design(problem, candidates_as_theta(search, asset, problem), pc.surrogate.n_initial,
                        pc.surrogate.n_sobol, cfg.seed)  # fmt: skip
     if pc.likelihood == "rendered":
@@ -212,6 +217,44 @@ def _own_sequence(run_dir: Path, seq_dir: Path) -> bool:
         return Path(seq_dir).resolve() == run_sequence(run_dir).resolve()
     except (FileNotFoundError, KeyError):
         return False
+
+
+def search_key(cfg, asset_dir: Path, seq_dir: Path) -> str:
+    """The digest of what decides a design search: the asset's and the sequence's files, the
+    search's settings (recon.search.*), the image loss's weight, the renderer's settings, the seed."""
+    asset_files = {p.name: file_hash(p) for p in sorted(Path(asset_dir).iterdir()) if p.is_file()}
+    return key_hash(
+        {
+            "asset": asset_files,
+            "sequence": sequence_digest(Path(seq_dir)),
+            "search": cfg.recon.search,
+            "lambda_dssim": float(cfg.recon.lambda_dssim),
+            "render": cfg.render,
+            "seed": int(cfg.seed),
+        }
+    )
+
+
+def cached_search(path: Path, key: str, search) -> dict:
+    """`search()`'s record, kept in `path` with `key` (`search_key`): a posterior run again on the
+    same sequence (a calibration case resumed after its search, a rerun with other sampler
+    settings) reads it instead of searching again (~20 min at small); a record of another key is
+    searched again and replaced."""
+    path = Path(path)
+    if path.exists():
+        try:
+            kept = json.loads(path.read_text())
+        except json.JSONDecodeError:
+            kept = {}
+        if kept.get("key") == key:
+            log.info("posterior: the design search from %s (same sequence, asset and recon.search)", path)
+            return kept["search"]
+    found = search()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps({"key": key, "search": found}))
+    tmp.replace(path)
+    return found
 
 
 def search_sequence(cfg, asset, seq, images: RenderedImages | None, progress: bool = False) -> dict:

@@ -17,7 +17,8 @@ its ground is the asset's contact plane (the plane the anchors touch). Reconstru
 with the pipeline therefore needs `recon.contact_margin=0` to stay in the model class (the
 pipeline raises the recorded ground by the Gaussians' median scale otherwise).
 `gt/particles_<f>.npy` hold the bound Gaussian centres (what the evaluation scores against),
-`gt/params.json` {"twin": true, "asset": ..., "truth": {...}, "values": {...}, "image_noise": σ}.
+`gt/params.json` {"twin": true, "asset": ..., "truth": {...}, "values": {...}, "image_noise": σ,
+"image_scale": s}.
 """
 
 from __future__ import annotations
@@ -132,6 +133,7 @@ def twin_sequence(
             "log10_k_mean": float(np.mean(values["log10_k"])),
             "n_substeps": int(pred.n_substeps),
             "image_noise": float(image_noise),
+            "image_scale": int(image_scale),
         },
         gt_effects=_effects(physics or {}, fields or {}),
     )

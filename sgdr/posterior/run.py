@@ -13,6 +13,8 @@ posterior predictive with the forecast's discrepancy ball, and writes into `<run
   samples.npz      chains [E, steps, W, D], log_prob [E, steps, W], acceptance [E, W], names,
                    kept [N, D] (post burn-in, thinned), burn_in, thin; with the surrogate also
                    evaluated [N, D], evaluated_log_like [N] (every rendered evaluation)
+  design_search.json  a sequence other than the run's own: the global search on its images (the
+                   design's candidates), kept with its key (`search_key`) for a rerun
   corner.png, traces.png, predictive.png, ensemble.mp4 (the draws' projected centres over the images)
 
 and adds the 'Posterior' section to `<run>/report/report.html` when that page exists.

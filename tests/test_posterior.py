@@ -400,6 +400,15 @@ def test_tiny_rendered_posterior_converges_on_a_twin(tiny):
     moved = [m["loss"] for m in prof["moved"]["log10_k_shift"]]
     assert prof["centre_loss"] < min(moved), prof
     assert np.mean(prof["centre_per_frame"]) == pytest.approx(prof["centre_loss"])  # per fit frame, views averaged
+    # the posterior's own log L, rebuilt from its record: the reference scores -n_vf / (2T) (its
+    # misfit is the scale; less negative only where the loss floor lifts the scale above it)
+    from evaluation.studies.likelihood_profile import log_likelihood_at
+
+    at = log_likelihood_at(cfg, record, ["truth", "likelihood.reference"], "posterior.json")
+    n_vf = at["n_view_frames"]
+    ref_ll = at["at"]["likelihood.reference"]["log_likelihood"]
+    assert -1.02 * n_vf / (2 * record["likelihood"]["temperature"]) <= ref_ll < 0
+    assert at["at"]["truth"]["loss"] == pytest.approx(prof["centre_loss"])
     assert len(prof["moved"]["log10_k_shift"][0]["per_frame"]) == len(prof["centre_per_frame"])
     with pytest.raises(SystemExit, match="not sampled"):
         profile(cfg, centre, names, parse_steps("kappa:0.1"))

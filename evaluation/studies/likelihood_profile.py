@@ -7,7 +7,8 @@ the scale and views the posterior uses) at a centre and with each sampled parame
 
 `+centre` is a section of the posterior.json holding one value per sampled parameter (`truth`,
 `map`, or `likelihood.reference`); `+steps=name:a,b,...;name:...` overrides the offsets (the
-defaults below). Prints one JSON object: the centre, its mean loss per view-frame, and per
+defaults below). `+at=truth,likelihood.reference,diagnostics.median` instead prints the
+posterior's own log-likelihood and loss at each of those sections (`log_likelihood_at`). Prints one JSON object: the centre, its mean loss per view-frame, and per
 parameter the offsets and their losses, each also per fit frame (the mean over the views: how the
 basin narrows as the rollout goes on; docs/posterior.md, "SBC at small").
 """
@@ -91,6 +92,35 @@ def profile(cfg, centre: np.ndarray, names: list[str], steps: dict) -> dict:
     return out
 
 
+def log_likelihood_at(cfg, posterior: dict, keys: list[str], where: str) -> dict:
+    """The posterior's own rendered log-likelihood (its recorded noise, discrepancy and temperature)
+    and mean loss per view-frame at each section `keys` of its posterior.json (e.g. `truth`,
+    `likelihood.reference`, `diagnostics.median`): whether a twin's truth fits its images better
+    than where the posterior sits (a design search that missed the truth's basin) or worse (a
+    posterior too narrow around the right place)."""
+    from sgdr.posterior.likelihood import RenderedLikelihood
+
+    lk = posterior.get("likelihood") or {}
+    if lk.get("kind") != "rendered":
+        raise SystemExit(f"error: {where}: +at needs a posterior with the rendered likelihood")
+    names = list(posterior["names"])
+    pc = cfg.posterior
+    _, asset, _, seq = run_asset_and_sequence(Path(pc.run), pc.sequence, cfg.scene_file, "posterior")
+    images = rendered_images(cfg, Path(pc.run), asset, seq, Problem.from_config(asset, pc))
+    like = RenderedLikelihood(
+        float(lk["noise"]), np.asarray(lk["discrepancy_per_frame"], float), float(lk["temperature"])
+    )
+    thetas = np.stack([centre_of(posterior, k, names, where) for k in keys])
+    losses = np.asarray(images(thetas), float)  # [S, F, V]
+    if losses.shape[1] != like.scale.size:
+        raise SystemExit(f"error: {where}: {like.scale.size} frames in its likelihood, {losses.shape[1]} rendered here")
+    ll = like.log_likelihood(losses)
+    return {
+        "n_view_frames": int(losses[0].size),
+        "at": {k: {"log_likelihood": float(v), "loss": float(np.mean(x))} for k, v, x in zip(keys, ll, losses)},
+    }
+
+
 def main(argv: list[str]) -> None:
     extra, overrides = split_extra(argv)
     with user_errors():
@@ -101,8 +131,11 @@ def main(argv: list[str]) -> None:
         where = extra["posterior_json"]
         posterior = json.loads(Path(where).read_text())
         names = list(posterior["names"])
-        centre = centre_of(posterior, extra.get("centre", "truth"), names, where)
         sgdr.backend.init(cfg.backend, cfg.threads or None)
+        if "at" in extra:
+            print(json.dumps(log_likelihood_at(cfg, posterior, str(extra["at"]).split(","), where)))
+            return
+        centre = centre_of(posterior, extra.get("centre", "truth"), names, where)
         print(json.dumps(profile(cfg, centre, names, parse_steps(extra.get("steps")))))
 
 

@@ -408,7 +408,7 @@ def test_tiny_rendered_posterior_converges_on_a_twin(tiny):
     n_vf = at["n_view_frames"]
     ref_ll = at["at"]["likelihood.reference"]["log_likelihood"]
     assert -1.02 * n_vf / (2 * record["likelihood"]["temperature"]) <= ref_ll < 0
-    assert at["at"]["truth"]["loss"] == pytest.approx(prof["centre_loss"])
+    assert at["at"]["truth"]["loss"] == pytest.approx(prof["centre_loss"], rel=1e-4)  # the same render
     assert len(prof["moved"]["log10_k_shift"][0]["per_frame"]) == len(prof["centre_per_frame"])
     with pytest.raises(SystemExit, match="not sampled"):
         profile(cfg, centre, names, parse_steps("kappa:0.1"))

@@ -202,9 +202,8 @@ def run_case(cfg, case: int, asset_dir: Path, digest: str, out: Path, twin_scale
     truth = draw_truth(pc.priors, names, case)
     case_dir = out / f"case_{case:03d}"
     twin = case_dir / "twin"
-    if not same_twin(
-        twin, asset_dir, truth, twin_scale, twin_noise
-    ):  # a resumed case keeps its twin (and its design search)
+    # a resumed case keeps its twin, and with it the design search its posterior kept
+    if not same_twin(twin, asset_dir, truth, twin_scale, twin_noise):
         twin_sequence(asset_dir, twin, truth, cfg.render, image_scale=int(twin_scale),
                       image_noise=float(twin_noise), noise_seed=case)  # fmt: skip
     case_cfg = replace(

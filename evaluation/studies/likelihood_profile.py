@@ -7,10 +7,11 @@ the scale and views the posterior uses) at a centre and with each sampled parame
 
 `+centre` is a section of the posterior.json holding one value per sampled parameter (`truth`,
 `map`, or `likelihood.reference`); `+steps=name:a,b,...;name:...` overrides the offsets (the
-defaults below). `+at=truth,likelihood.reference,diagnostics.median` instead prints the
-posterior's own log-likelihood and loss at each of those sections (`log_likelihood_at`). Prints one JSON object: the centre, its mean loss per view-frame, and per
+defaults below). Prints one JSON object: the centre, its mean loss per view-frame, and per
 parameter the offsets and their losses, each also per fit frame (the mean over the views: how the
 basin narrows as the rollout goes on; docs/posterior.md, "SBC at small").
+`+at=truth,likelihood.reference,diagnostics.median` instead prints the posterior's own
+log-likelihood and loss at each of those sections (`log_likelihood_at`).
 """
 
 from __future__ import annotations

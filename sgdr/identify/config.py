@@ -56,6 +56,12 @@ class SearchConfig:
     # wide bowl around the truth where the whole window's is a needle on a plateau
     # (docs/posterior.md, "SBC at small"); [1.0] = one stage
     frame_schedule: list[float] = field(default_factory=lambda: [1.0])
+    # before each stage's CMA-ES, a coordinate sweep from its start: each parameter in turn over
+    # this many evenly spread values of its whole range (the others at the best so far; one batched
+    # rollout each), the best moving the start. A later window sees what the earlier one could not
+    # (the bounce's restitution) where the earlier stage left it anywhere (docs/posterior.md,
+    # "SBC at small"); 0 = none
+    line_points: int = 0
     images_per_call: int = 200  # rendered and scored together (sgdr.render.splat.render_batch); 1 = one at a time
     top_k: int = 5  # candidates whose futures the report compares (within equivalent_tolerance of the best)
     equivalent_tolerance: float = 0.05  # relative loss within which candidates count as fitting equally well
@@ -146,6 +152,7 @@ SEARCH_CHECKS = {
     "generations": at_least(1),
     "initial_samples": non_negative("0: CMA-ES starts at physics.*_init"),
     "frame_schedule": list_of(between(0.0, 1.0, lo_open=True), min_len=1),
+    "line_points": non_negative("0: no coordinate sweep"),
     "image_scale": at_least(1),
     "top_k": at_least(1),
     "equivalent_tolerance": non_negative(),

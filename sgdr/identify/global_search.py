@@ -470,6 +470,38 @@ def _stage_best(stage: dict, names) -> tuple[dict[str, float], float]:
     return {n: float(c[j, k]) for k, n in enumerate(names)}, float(loss[j])
 
 
+def _record(stage: dict, space: SearchSpace, values: dict, losses: np.ndarray, generation: int) -> None:
+    """Add scored candidates to a search stage's record."""
+    stage["candidates"].append(np.stack([values[n] for n in space.names], axis=1))
+    stage["losses"].append(losses)
+    stage["generation"].append(np.full(losses.size, generation))
+
+
+def coordinate_sweep(score, space: SearchSpace, u: np.ndarray, loss: float | None, n_points: int, record=None):
+    """From unit coordinates `u` (its loss `loss`, or None: scored with the first line), each
+    parameter in turn over `n_points` evenly spread values of its whole range, (i + 1/2) / n, the
+    others at the best so far: one batch of `score` ({name: [S]} -> [S] losses) per parameter, the
+    best of each moving the point. `record(values, losses)` sees every batch. Returns the best unit
+    coordinates and their loss. A window that sees a parameter the previous one did not (the
+    bounce's restitution in the later frames) finds its basin here, where CMA-ES, restarted with the
+    small step the earlier window left it, closes in slowly (docs/posterior.md, "SBC at small")."""
+    u = np.asarray(u, float).copy()
+    grid = (np.arange(int(n_points)) + 0.5) / int(n_points)
+    for i in range(u.size):
+        trial = np.repeat(u[None, :], grid.size, axis=0)
+        trial[:, i] = grid
+        if loss is None:
+            trial = np.vstack([u[None, :], trial])
+        values = space.values(trial)
+        f = np.asarray(score(values), float)
+        if record is not None:
+            record(values, f)
+        j = int(np.argmin(f))
+        if loss is None or f[j] < loss:
+            u, loss = trial[j].copy(), float(f[j])
+    return u, loss
+
+
 def global_search(
     scorer: PopulationScorer,
     space: SearchSpace,
@@ -486,7 +518,8 @@ def global_search(
     With recon.search.frame_schedule = [s_1, ..., 1] the generations are split among stages that
     score the first s_i of the fit frames (the Sobol points on the first stage's); each later stage
     first scores the previous stage's best on its window and restarts CMA-ES there with the step
-    size it had reached.
+    size it had reached. With recon.search.line_points > 0 each stage's CMA-ES starts after a
+    `coordinate_sweep` from its start (recorded with that stage's first generation).
     Only the last stage's candidates, scored on the whole window, are comparable with each other
     and with what the posterior evaluates: they are the result's candidates; the earlier stages
     are summarised in `stages`. Returns every such candidate and the best one."""
@@ -503,8 +536,21 @@ def global_search(
     gens = stage_generations(int(search_cfg.generations), len(frames))
     stages = [{"frames": f, "generations": g, "candidates": [], "losses": [], "generation": []}
               for f, g in zip(frames, gens)]  # fmt: skip
-    u0 = space.unit(start)
+    u0, loss0 = space.unit(start), None
     n0 = int(search_cfg.initial_samples)
+    n_line = int(getattr(search_cfg, "line_points", 0))
+
+    def window(stage: dict) -> int | None:
+        return None if stage["frames"] == n_fit else stage["frames"]
+
+    def sweep(stage: dict, u: np.ndarray, loss: float | None, generation: int) -> np.ndarray:
+        if n_line <= 0:
+            return u
+        u, loss = coordinate_sweep(lambda v: scorer(v, frames=window(stage)), space, u, loss, n_line,
+                                   lambda v, f: _record(stage, space, v, f, generation))  # fmt: skip
+        log.info("dynamics: global search: coordinate sweep on the first %d fit frames, best %.5f", stage["frames"],
+                 loss)  # fmt: skip
+        return u
     if n0 > 0:
         # a space-filling first look (scrambled Sobol points over the whole box): CMA-ES with a
         # small population settles in the basin nearest its start; this picks the start among basins
@@ -513,14 +559,12 @@ def global_search(
         first = stages[0]
         u_all = qmc.Sobol(d, scramble=True, seed=int(seed)).random(n0)
         for chunk in range(0, n0, popsize):
-            u = u_all[chunk : chunk + popsize]
-            values = space.values(u)
-            first["candidates"].append(np.stack([values[n] for n in space.names], axis=1))
-            first["losses"].append(scorer(values, frames=first["frames"]))
-            first["generation"].append(np.full(u.shape[0], -1))
+            values = space.values(u_all[chunk : chunk + popsize])
+            _record(first, space, values, scorer(values, frames=window(first)), -1)
         scored = np.concatenate(first["losses"])
-        u0 = u_all[int(np.argmin(scored))]
-        log.info("dynamics: global search: %d space-filling samples, best %.5f", n0, float(np.min(scored)))
+        u0, loss0 = u_all[int(np.argmin(scored))], float(np.min(scored))
+        log.info("dynamics: global search: %d space-filling samples, best %.5f", n0, loss0)
+    u0 = sweep(stages[0], u0, loss0, 0)
     opts = {
         "bounds": [0.0, 1.0],
         "popsize": popsize,
@@ -544,9 +588,8 @@ def global_search(
             # there with the step it had reached (its mean may sit beside the best on a flat stretch)
             u_best = space.unit(_stage_best(plan[g - 1][0], space.names)[0])
             values = space.values(u_best[None, :])
-            stage["candidates"].append(np.stack([values[n] for n in space.names], axis=1))
-            stage["losses"].append(scorer(values, frames=None if stage["frames"] == n_fit else stage["frames"]))
-            stage["generation"].append(np.full(1, g))
+            _record(stage, space, values, scorer(values, frames=window(stage)), g)
+            u_best = sweep(stage, u_best, float(stage["losses"][-1][0]), g)
             sigma = max(float(es.sigma), 1e-3)
             es = cma.CMAEvolutionStrategy(u_best.tolist(), sigma, {**opts, "maxiter": len(plan) - g})
         if es.stop():  # converged: on to the next window (or done on the last)
@@ -555,15 +598,12 @@ def global_search(
             continue
         u = np.asarray(es.ask(), float)
         values = space.values(u)
-        whole = stage["frames"] == n_fit
-        f = scorer(values, frames=None if whole else stage["frames"])
+        f = scorer(values, frames=window(stage))
         es.tell(list(u), f.tolist())
-        stage["candidates"].append(np.stack([values[n] for n in space.names], axis=1))
-        stage["losses"].append(f)
-        stage["generation"].append(np.full(f.size, g))
+        _record(stage, space, values, f, g)
         best = float(np.min(np.concatenate(stage["losses"])))
-        window = "" if len(stages) == 1 else f" (first {stage['frames']} of {n_fit} fit frames)"
-        log.info("dynamics: global search generation %d%s: best loss %.5f (this generation %.5f)", g, window, best,
+        shown = "" if len(stages) == 1 else f" (first {stage['frames']} of {n_fit} fit frames)"
+        log.info("dynamics: global search generation %d%s: best loss %.5f (this generation %.5f)", g, shown, best,
                  f.min())  # fmt: skip
         if progress:
             steps.set_postfix(best=f"{best:.4f}")

@@ -551,6 +551,7 @@ def global_search(
         log.info("dynamics: global search: coordinate sweep on the first %d fit frames, best %.5f", stage["frames"],
                  loss)  # fmt: skip
         return u
+
     if n0 > 0:
         # a space-filling first look (scrambled Sobol points over the whole box): CMA-ES with a
         # small population settles in the basin nearest its start; this picks the start among basins

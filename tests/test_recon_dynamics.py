@@ -441,7 +441,7 @@ def test_a_coordinate_sweep_finds_what_only_the_later_window_sees():
     assert [n for n, _ in scorer.calls[:4]] == [8, 8, 8, 8] and frames[:4] == [5] * 4  # Sobol, then 3 lines
     assert frames[4:10] == [5] * 6  # CMA-ES on the first half
     assert scorer.calls[10] == (1, None) and scorer.calls[11:14] == [(8, None)] * 3  # its best, 3 lines
-    assert swept.losses.size == 1 + 3 * 8 + 6 * 8
+    assert swept.losses.size == 1 + 3 * 8 + 6 * 8 and swept.to_json()["n_swept"] == 3 * 8
     # alone: a start with no loss is scored with the first line; the best never gets worse
     u, loss = coordinate_sweep(_BounceScorer(), space, space.unit(start), None, 4)
     assert loss <= float(_BounceScorer()(space.values(space.unit(start)[None, :]))[0])

@@ -194,6 +194,8 @@ def test_the_global_search_warns_when_equally_good_candidates_part_and_at_a_rang
         "3 candidates (0 space-filling, then CMA-ES in 1 generations)" in body and "do not pin the physics down" in body
     )
     assert "no field: the global level" in body and "Chosen: 1" in body
+    swept = identification_body(tmp_path, _dyn(search={**_search(), "n_evaluations": 11, "n_swept": 8}))
+    assert "11 candidates (0 space-filling, 8 in coordinate sweeps, then CMA-ES in 1 generations)" in swept
 
 
 # ------------------------------------------------------------------------------ strict JSON scores

@@ -235,6 +235,7 @@ class GlobalSearchResult:
     # the stages on part of the fit window before the last (recon.search.frame_schedule): per stage
     # the fit frames scored, its evaluations, its best loss (on those frames) and values
     stages: list = field(default_factory=list)
+    n_swept: int = 0  # of the candidates, those of the coordinate sweep (recon.search.line_points)
 
     def to_json(self) -> dict:
         """Plain values for dynamics.json (the report's landscape section reads them)."""
@@ -248,6 +249,7 @@ class GlobalSearchResult:
             "n_evaluations": int(self.losses.size),
             "n_generations": int(self.generation.max() + 1) if self.generation.size else 0,
             "n_initial_samples": int(np.sum(self.generation < 0)),
+            "n_swept": self.n_swept,
             "n_substeps": self.n_substeps,
             "image_scale": self.image_scale,
             "candidates": self.candidates[order].tolist(),
@@ -534,7 +536,7 @@ def global_search(
     n_fit = scorer.n_fit_frames
     frames = stage_frames(getattr(search_cfg, "frame_schedule", [1.0]), n_fit)
     gens = stage_generations(int(search_cfg.generations), len(frames))
-    stages = [{"frames": f, "generations": g, "candidates": [], "losses": [], "generation": []}
+    stages = [{"frames": f, "generations": g, "candidates": [], "losses": [], "generation": [], "n_swept": 0}
               for f, g in zip(frames, gens)]  # fmt: skip
     u0, loss0 = space.unit(start), None
     n0 = int(search_cfg.initial_samples)
@@ -546,8 +548,11 @@ def global_search(
     def sweep(stage: dict, u: np.ndarray, loss: float | None, generation: int) -> np.ndarray:
         if n_line <= 0:
             return u
-        u, loss = coordinate_sweep(lambda v: scorer(v, frames=window(stage)), space, u, loss, n_line,
-                                   lambda v, f: _record(stage, space, v, f, generation))  # fmt: skip
+        def record(values: dict, losses: np.ndarray) -> None:
+            _record(stage, space, values, losses, generation)
+            stage["n_swept"] += losses.size
+
+        u, loss = coordinate_sweep(lambda v: scorer(v, frames=window(stage)), space, u, loss, n_line, record)
         log.info("dynamics: global search: coordinate sweep on the first %d fit frames, best %.5f", stage["frames"],
                  loss)  # fmt: skip
         return u
@@ -632,4 +637,5 @@ def global_search(
         lo=space.lo,
         hi=space.hi,
         stages=summary,
+        n_swept=last["n_swept"],
     )

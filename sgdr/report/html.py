@@ -195,7 +195,8 @@ def identification_body(out: Path, dyn: dict) -> str:
         png = report.plot_search(out / "search.png", search)
         body += paragraph(
             f"Global search: {search['n_evaluations']} candidates ({search.get('n_initial_samples', 0)} space-filling, "
-            f"then CMA-ES in {search['n_generations']} generations), "
+            + (f"{search['n_swept']} in coordinate sweeps, " if search.get("n_swept") else "")
+            + f"then CMA-ES in {search['n_generations']} generations), "
             f"each scored by its open-loop rollout of all fit frames on all views at n_t = {search['n_substeps']} "
             f"(images downscaled {search['image_scale']}x). Best loss {_fmt(search['best_loss'])} at "
             + ", ".join(f"{n} = {_fmt(v)}" for n, v in search["best"].items())

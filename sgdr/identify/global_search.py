@@ -548,6 +548,7 @@ def global_search(
     def sweep(stage: dict, u: np.ndarray, loss: float | None, generation: int) -> np.ndarray:
         if n_line <= 0:
             return u
+
         def record(values: dict, losses: np.ndarray) -> None:
             _record(stage, space, values, losses, generation)
             stage["n_swept"] += losses.size

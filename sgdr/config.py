@@ -90,6 +90,7 @@ SECTION_CHECKS = {
     "diagnose": diagnose_config.CHECKS,
     "posterior.priors": posterior_config.PRIOR_CHECKS,
     "posterior.surrogate": posterior_config.SURROGATE_CHECKS,
+    "posterior.surrogate.design_search": posterior_config.DESIGN_SEARCH_CHECKS,
     "realcap": realcap_config.CHECKS,
     "baseline": baseline_config.CHECKS,
     "baseline.pacnerf": baseline_config.PACNERF_CHECKS,

@@ -67,6 +67,29 @@ def test_a_record_of_another_sampler_setup_is_refused_before_any_work(tmp_path):
     assert not (tmp_path / "cases" / "case_000").exists()
 
 
+def test_the_setup_holds_the_design_search_in_effect_once():
+    """The posterior's design-search settings enter a record's setup once, merged into the search
+    they change: a record written with the same search given as recon.search.* overrides is the
+    same setup."""
+    from omegaconf import OmegaConf
+
+    from evaluation.studies.calibrate_posterior import sampler_setup
+    from sgdr.config import compose
+
+    cfg = OmegaConf.to_object(compose(["preset=small", "posterior.run=none"]))
+    setup = sampler_setup(cfg, 1, 0.02)
+    assert "design_search" not in setup["surrogate"]
+    ds = cfg.posterior.surrogate.design_search
+    assert setup["design_search"]["initial_samples"] == ds.initial_samples == 128
+    assert setup["design_search"]["line_points"] == ds.line_points
+    assert setup["design_search"]["frame_schedule"] == [0.5, 1.0]
+    assert setup["design_search"]["popsize"] == cfg.recon.search.popsize  # the rest is recon.search's
+    other = OmegaConf.to_object(
+        compose(["preset=small", "posterior.run=none", "posterior.surrogate.design_search.generations=48"])
+    )
+    assert sampler_setup(other, 1, 0.02)["design_search"]["generations"] == 48 != setup["design_search"]["generations"]
+
+
 def _append_cases(record_file, setup, cases):
     import json
     import time

@@ -410,6 +410,16 @@ def test_tiny_rendered_posterior_converges_on_a_twin(tiny):
     assert -1.02 * n_vf / (2 * record["likelihood"]["temperature"]) <= ref_ll < 0
     assert at["at"]["truth"]["loss"] == pytest.approx(prof["centre_loss"], rel=1e-4)  # the same render
     assert len(prof["moved"]["log10_k_shift"][0]["per_frame"]) == len(prof["centre_per_frame"])
+    # on the line from the reference to the truth: its ends are the two points above
+    from evaluation.studies.likelihood_profile import log_likelihood_on_line, parse_line
+
+    ends, fractions = parse_line("likelihood.reference:truth", "0,0.5,1")
+    line = log_likelihood_on_line(cfg, record, ends, fractions, "posterior.json")
+    assert [p["fraction"] for p in line["points"]] == [0.0, 0.5, 1.0]
+    assert line["points"][0]["log_likelihood"] == pytest.approx(ref_ll, rel=1e-4)
+    assert line["points"][-1]["loss"] == pytest.approx(at["at"]["truth"]["loss"], rel=1e-4)
+    with pytest.raises(SystemExit, match="two sections"):
+        parse_line("truth", None)
     with pytest.raises(SystemExit, match="not sampled"):
         profile(cfg, centre, names, parse_steps("kappa:0.1"))
     with pytest.raises(SystemExit, match="centre=map.nothing"):

@@ -127,6 +127,16 @@ def test_the_design_keeps_candidates_inside_the_prior_best_first():
     assert d[:, 0].tolist() == [0.5, 0.3, 0.7]
 
 
+def test_the_design_counts_candidates_that_coincide_once():
+    """A search over more parameters than the posterior samples gives candidates that coincide
+    once projected (a sweep over a parameter the posterior keeps fixed): each enters once, the
+    MAP among them too, and n_initial counts distinct ones."""
+    problem = Problem(["a", "b"], np.array([0.0, 0.0]), np.array([1.0, 1.0]), np.array([0.5, 0.5]))
+    cand = np.array([[0.3, 0.2], [0.3, 0.2], [0.5, 0.5], [0.3, 0.2], [0.7, 0.1], [0.9, 0.9]])
+    d = design(problem, cand, n_initial=2, n_sobol=0, seed=0)
+    assert d.tolist() == [[0.5, 0.5], [0.3, 0.2], [0.7, 0.1]]
+
+
 class _Cam:
     """An orthographic-looking pinhole camera on the x axis: pixel u along +y, v along -z."""
 

@@ -138,17 +138,50 @@ def test_a_design_search_is_kept_and_reused_only_for_the_same_sequence_and_setti
     key = search_key(cfg, asset_dir, seq)
     assert cached_search(path, key, search(3.0))["candidates"] == [[3.0]]
     assert cached_search(path, key, search(4.0))["candidates"] == [[3.0]] and calls == [3.0]  # kept
-    # another search budget, another sequence's images: searched again
+    # another search budget (the design search's own, or recon.search's where it has none), another
+    # sequence's images: searched again
+    pc = cfg.posterior
+    ds = pc.surrogate.design_search
     more = replace(
-        cfg, recon=replace(cfg.recon, search=replace(cfg.recon.search, generations=cfg.recon.search.generations + 1))
+        cfg,
+        posterior=replace(
+            pc, surrogate=replace(pc.surrogate, design_search=replace(ds, generations=ds.generations + 1))
+        ),
     )
     assert search_key(more, asset_dir, seq) != key
+    wider = replace(
+        cfg, recon=replace(cfg.recon, search=replace(cfg.recon.search, popsize=cfg.recon.search.popsize + 1))
+    )
+    assert search_key(wider, asset_dir, seq) != key
+    # recon.search's own budget is the user's identification's, not the design search's
+    longer = replace(
+        cfg, recon=replace(cfg.recon, search=replace(cfg.recon.search, generations=cfg.recon.search.generations + 1))
+    )
+    assert search_key(longer, asset_dir, seq) == key
     noisy = twin_sequence(asset_dir, tmp_path / "noisy", {}, image_noise=0.05)
     assert search_key(cfg, asset_dir, noisy) != key
     assert cached_search(path, search_key(cfg, asset_dir, noisy), search(5.0))["candidates"] == [[5.0]]
     assert calls == [3.0, 5.0]
     path.write_text("{not json")  # a file cut short by a kill: searched again
     assert cached_search(path, key, search(6.0))["candidates"] == [[6.0]]
+
+
+def test_the_design_search_is_recon_search_with_the_posteriors_budget_and_windows():
+    from omegaconf import OmegaConf
+
+    from sgdr.config import compose
+    from sgdr.posterior.run import design_search_config
+
+    overrides = ["preset=small", "posterior.surrogate.design_search.line_points=5", "recon.search.popsize=7"]
+    for cfg in (compose(overrides), OmegaConf.to_object(compose(overrides))):
+        sc = design_search_config(cfg)
+        ds = cfg.posterior.surrogate.design_search
+        assert (sc.initial_samples, sc.generations, sc.line_points) == (ds.initial_samples, ds.generations, 5)
+        assert list(sc.frame_schedule) == [0.5, 1.0] and list(cfg.recon.search.frame_schedule) == [1.0]
+        # the rest is the identification's: candidates per generation, image scale, parameters, ranges
+        assert sc.popsize == 7 and sc.image_scale == cfg.recon.search.image_scale
+        assert list(sc.parameters) == list(cfg.recon.search.parameters)
+        assert cfg.recon.search.line_points == 0  # the user's own search is left as it was
 
 
 def test_a_resumed_calibration_case_keeps_its_twin_only_when_truth_scale_and_noise_match(asset_dir, tmp_path):

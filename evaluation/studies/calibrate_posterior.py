@@ -38,7 +38,7 @@ import sgdr.backend
 from evaluation.studies.config import split_extra
 from sgdr.cli import user_errors
 from sgdr.config import compose, validate
-from sgdr.posterior.run import run_posterior
+from sgdr.posterior.run import design_search_config, run_posterior
 from sgdr.synth.twin import twin_sequence
 
 N_BINS = 5  # rank histogram bins (few cases: coarse bins)
@@ -155,24 +155,26 @@ def parse_shard(text: str | None) -> tuple[int, int]:
 def sampler_setup(cfg, twin_scale: int, twin_noise: float = 0.0) -> dict:
     """What a record's cases must share: the twins' scale, the sampler's settings and, where the
     design comes from a global search on each twin's images (`posterior.surrogate.search_other_sequence`),
-    that search's settings (`recon.search.*`: its budget and schedule decide which basin is found)."""
+    that search's settings (`design_search_config`: its budget and schedule decide which basin is found)."""
     pc = cfg.posterior
     from dataclasses import asdict
 
     searched = pc.sampler == "surrogate" and pc.surrogate.search_other_sequence
+    # the surrogate's own settings; its design search's are in "design_search", in effect
+    surrogate = {k: v for k, v in asdict(pc.surrogate).items() if k != "design_search"}
     return {
         "twin_scale": int(twin_scale),
         **({"twin_noise": float(twin_noise)} if twin_noise else {}),  # absent without: older records stand
         "likelihood": pc.likelihood,
         "sampler": pc.sampler,
-        "surrogate": asdict(pc.surrogate) if pc.sampler == "surrogate" else None,
+        "surrogate": surrogate if pc.sampler == "surrogate" else None,
         "moves": pc.moves,
         "space": pc.space,
         "n_steps": int(pc.n_steps),
         "n_walkers": int(pc.n_walkers),
         "n_ensembles": int(pc.n_ensembles),
         "parameters": list(pc.parameters),
-        "design_search": asdict(cfg.recon.search) if searched else None,
+        "design_search": asdict(design_search_config(cfg)) if searched else None,
     }
 
 

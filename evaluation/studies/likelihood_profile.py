@@ -11,7 +11,9 @@ defaults below). Prints one JSON object: the centre, its mean loss per view-fram
 parameter the offsets and their losses, each also per fit frame (the mean over the views: how the
 basin narrows as the rollout goes on; docs/posterior.md, "SBC at small").
 `+at=truth,likelihood.reference,diagnostics.median` instead prints the posterior's own
-log-likelihood and loss at each of those sections (`log_likelihood_at`).
+log-likelihood and loss at each of those sections (`log_likelihood_at`);
+`+line=diagnostics.median:truth` (`+fractions=0,0.25,0.5,0.75,1`, the default) on the straight line
+between two sections (`log_likelihood_on_line`: a ridge or a valley between them).
 """
 
 from __future__ import annotations
@@ -93,33 +95,71 @@ def profile(cfg, centre: np.ndarray, names: list[str], steps: dict) -> dict:
     return out
 
 
-def log_likelihood_at(cfg, posterior: dict, keys: list[str], where: str) -> dict:
+def _posterior_log_likelihood(cfg, posterior: dict, thetas: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray]:
     """The posterior's own rendered log-likelihood (its recorded noise, discrepancy and temperature)
-    and mean loss per view-frame at each section `keys` of its posterior.json (e.g. `truth`,
-    `likelihood.reference`, `diagnostics.median`): whether a twin's truth fits its images better
-    than where the posterior sits (a design search that missed the truth's basin) or worse (a
-    posterior too narrow around the right place)."""
+    at each θ [S, D], and the losses [S, F, V] behind it."""
     from sgdr.posterior.likelihood import RenderedLikelihood
 
     lk = posterior.get("likelihood") or {}
     if lk.get("kind") != "rendered":
-        raise SystemExit(f"error: {where}: +at needs a posterior with the rendered likelihood")
-    names = list(posterior["names"])
+        raise SystemExit(f"error: {where}: +at and +line need a posterior with the rendered likelihood")
     pc = cfg.posterior
     _, asset, _, seq = run_asset_and_sequence(Path(pc.run), pc.sequence, cfg.scene_file, "posterior")
     images = rendered_images(cfg, Path(pc.run), asset, seq, Problem.from_config(asset, pc))
     like = RenderedLikelihood(
         float(lk["noise"]), np.asarray(lk["discrepancy_per_frame"], float), float(lk["temperature"])
     )
-    thetas = np.stack([centre_of(posterior, k, names, where) for k in keys])
     losses = np.asarray(images(thetas), float)  # [S, F, V]
     if losses.shape[1] != like.scale.size:
         raise SystemExit(f"error: {where}: {like.scale.size} frames in its likelihood, {losses.shape[1]} rendered here")
-    ll = like.log_likelihood(losses)
+    return like.log_likelihood(losses), losses
+
+
+def log_likelihood_at(cfg, posterior: dict, keys: list[str], where: str) -> dict:
+    """The posterior's own log-likelihood and mean loss per view-frame at each section `keys` of its
+    posterior.json (e.g. `truth`, `likelihood.reference`, `diagnostics.median`): whether a twin's
+    truth fits its images better than where the posterior sits (a design search that missed the
+    truth's basin) or worse (a posterior too narrow around the right place)."""
+    names = list(posterior["names"])
+    thetas = np.stack([centre_of(posterior, k, names, where) for k in keys])
+    ll, losses = _posterior_log_likelihood(cfg, posterior, thetas, where)
     return {
         "n_view_frames": int(losses[0].size),
         "at": {k: {"log_likelihood": float(v), "loss": float(np.mean(x))} for k, v, x in zip(keys, ll, losses)},
     }
+
+
+def log_likelihood_on_line(cfg, posterior: dict, ends: tuple[str, str], fractions: list[float], where: str) -> dict:
+    """The posterior's own log-likelihood on the straight line between two sections of its
+    posterior.json (e.g. `diagnostics.median` and `truth`), at `fractions` of the way: whether the
+    two are joined by a ridge the likelihood keeps high (a posterior that should reach the truth and
+    does not: its surrogate never saw that stretch) or parted by a valley (another basin)."""
+    names = list(posterior["names"])
+    a, b = (centre_of(posterior, k, names, where) for k in ends)
+    t = np.asarray(fractions, float)
+    ll, losses = _posterior_log_likelihood(cfg, posterior, a[None] + t[:, None] * (b - a)[None], where)
+    return {
+        "line": list(ends),
+        "n_view_frames": int(losses[0].size),
+        "points": [
+            {"fraction": float(f), "log_likelihood": float(v), "loss": float(np.mean(x))}
+            for f, v, x in zip(t, ll, losses)
+        ],
+    }
+
+
+def parse_line(text: str, fractions: str | None) -> tuple[tuple[str, str], list[float]]:
+    """'+line=A:B' (two posterior.json sections) and '+fractions=0,0.5,1' -> ((A, B), [fractions])."""
+    a, sep, b = str(text).partition(":")
+    if not sep or not a.strip() or not b.strip():
+        raise SystemExit(f"error: +line={text}: expected two sections, e.g. +line=diagnostics.median:truth")
+    try:
+        ts = [float(x) for x in str(fractions or "0,0.25,0.5,0.75,1").split(",") if x.strip()]
+    except ValueError:
+        raise SystemExit(f"error: +fractions={fractions}: expected numbers, e.g. 0,0.5,1") from None
+    if not ts:
+        raise SystemExit("error: +fractions: none given")
+    return (a.strip(), b.strip()), ts
 
 
 def main(argv: list[str]) -> None:
@@ -133,6 +173,10 @@ def main(argv: list[str]) -> None:
         posterior = json.loads(Path(where).read_text())
         names = list(posterior["names"])
         sgdr.backend.init(cfg.backend, cfg.threads or None)
+        if "line" in extra:
+            ends, fractions = parse_line(extra["line"], extra.get("fractions"))
+            print(json.dumps(log_likelihood_on_line(cfg, posterior, ends, fractions, where)))
+            return
         if "at" in extra:
             print(json.dumps(log_likelihood_at(cfg, posterior, str(extra["at"]).split(","), where)))
             return

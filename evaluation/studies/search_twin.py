@@ -3,11 +3,12 @@ what the posterior's design starts from (`sgdr.posterior.run.search_sequence`), 
 sampler after it.
 
     python -m evaluation.studies.search_twin posterior.run=outputs/torus_small_s0 preset=small threads=1 \\
-        posterior.sequence=outputs/calibration_small/case_000/twin 'recon.search.frame_schedule=[0.5,1.0]'
+        posterior.sequence=outputs/calibration_small/case_000/twin posterior.surrogate.design_search.line_points=0
 
-Prints one JSON object: the search's best values and loss (on the whole fit window), its
-evaluations, the earlier stages of `recon.search.frame_schedule`, and the seconds it took
-(docs/posterior.md, "SBC at small").
+Its settings are the posterior's design search's (`design_search_config`: recon.search.* with
+posterior.surrogate.design_search.* in place). Prints one JSON object: the search's best values
+and loss (on the whole fit window), its evaluations, the earlier stages of the frame schedule,
+and the seconds it took (docs/posterior.md, "SBC at small").
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from sgdr.checks import Check, any_text, at_least, between, choice, list_of, positive, vector
+from sgdr.checks import Check, any_text, at_least, between, choice, list_of, non_negative, positive, vector
 from sgdr.posterior.surrogate import SurrogateConfig
 
 # the sampled parameters a posterior may include (sgdr.posterior.rollouts.SAMPLE_KEYS without v0)
@@ -87,6 +87,13 @@ SURROGATE_CHECKS = {
     "inside_min": between(0.0, 1.0, lo_open=True),
     "search_other_sequence": choice((True, False)),
     "start_within": positive(),
+}
+
+DESIGN_SEARCH_CHECKS = {
+    "initial_samples": non_negative("0: CMA-ES starts at the asset's values"),
+    "generations": at_least(1),
+    "line_points": non_negative("0: no coordinate sweep"),
+    "frame_schedule": list_of(between(0.0, 1.0, lo_open=True), min_len=1),
 }
 
 CHECKS: dict[str, Check] = {

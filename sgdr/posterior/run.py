@@ -221,15 +221,30 @@ def _own_sequence(run_dir: Path, seq_dir: Path) -> bool:
         return False
 
 
+def design_search_config(cfg):
+    """The design search's settings on a sequence other than the run's own: recon.search.* with
+    posterior.surrogate.design_search.* (its first look, sweeps, generations and windows) in place."""
+    from dataclasses import asdict, is_dataclass, replace
+
+    from omegaconf import OmegaConf
+
+    ds = cfg.posterior.surrogate.design_search
+    over = asdict(ds) if is_dataclass(ds) else OmegaConf.to_container(ds, resolve=True)
+    over["frame_schedule"] = [float(f) for f in over["frame_schedule"]]
+    search = cfg.recon.search
+    return replace(search, **over) if is_dataclass(search) else OmegaConf.merge(search, over)
+
+
 def search_key(cfg, asset_dir: Path, seq_dir: Path) -> str:
     """The digest of what decides a design search: the asset's and the sequence's files, the
-    search's settings (recon.search.*), the image loss's weight, the renderer's settings, the seed."""
+    search's settings (`design_search_config`), the image loss's weight, the renderer's settings,
+    the seed."""
     asset_files = {p.name: file_hash(p) for p in sorted(Path(asset_dir).iterdir()) if p.is_file()}
     return key_hash(
         {
             "asset": asset_files,
             "sequence": sequence_digest(Path(seq_dir)),
-            "search": cfg.recon.search,
+            "search": design_search_config(cfg),
             "lambda_dssim": float(cfg.recon.lambda_dssim),
             "render": cfg.render,
             "seed": int(cfg.seed),
@@ -249,7 +264,7 @@ def cached_search(path: Path, key: str, search) -> dict:
         except json.JSONDecodeError:
             kept = {}
         if kept.get("key") == key:
-            log.info("posterior: the design search from %s (same sequence, asset and recon.search)", path)
+            log.info("posterior: the design search from %s (same sequence, asset and search settings)", path)
             return kept["search"]
     found = search()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -260,23 +275,25 @@ def cached_search(path: Path, key: str, search) -> dict:
 
 
 def search_sequence(cfg, asset, seq, images: RenderedImages | None, progress: bool = False) -> dict:
-    """The identification's global stage (recon.search.*: CMA-ES over its parameters, every
-    candidate's open-loop rollout rendered and scored) on `seq` with the asset's model and
-    appearance: the design's candidates for a sequence the run did not see (e.g. a twin); the
-    search record's JSON ({"names", "candidates", "losses", ...})."""
+    """The identification's global stage (CMA-ES over its parameters, every candidate's open-loop
+    rollout rendered and scored; recon.search.* with posterior.surrogate.design_search.* in place,
+    `design_search_config`) on `seq` with the asset's model and appearance: the design's
+    candidates for a sequence the run did not see (e.g. a twin); the search record's JSON
+    ({"names", "candidates", "losses", ...})."""
     from sgdr.identify.global_search import REGION_START, global_search, search_space
 
-    if images is None or images.scorer.image_scale != int(cfg.recon.search.image_scale):
-        images = RenderedImages(asset, seq, None, cfg.render, cfg.recon.lambda_dssim, cfg.recon.search.image_scale,
-                                cfg.recon.search.images_per_call)  # fmt: skip
+    sc = design_search_config(cfg)
+    if images is None or images.scorer.image_scale != int(sc.image_scale):
+        images = RenderedImages(asset, seq, None, cfg.render, cfg.recon.lambda_dssim, sc.image_scale,
+                                sc.images_per_call)  # fmt: skip
     model, _ = asset.build()
     per_anchor = np.ndim(asset.values["log10_k"]) > 0 and np.size(asset.values["log10_k"]) > 1
-    space = search_space(cfg.recon.search, asset.physics, model, 1.0 / asset.fps, int(asset.n_substeps), per_anchor)
+    space = search_space(sc, asset.physics, model, 1.0 / asset.fps, int(asset.n_substeps), per_anchor)
     # from the asset's own values (the regions from the identification's start), else the box's centre
     centre = dict(zip(space.names, 0.5 * (space.lo + space.hi)))
     init = {n: REGION_START.get(n, float(np.mean(asset.values.get(n, centre[n])))) for n in space.names}
     t0 = time.time()
-    found = global_search(images.scorer, space, init, cfg.recon.search, cfg.seed, progress)
+    found = global_search(images.scorer, space, init, sc, cfg.seed, progress)
     log.info("posterior: global search on %s: %d candidates in %.0f s, best %s (loss %.5f)", seq.root,
              len(found.losses), time.time() - t0, found.best, found.best_loss)  # fmt: skip
     return found.to_json()

@@ -50,6 +50,21 @@ log = logging.getLogger(__name__)
 
 
 @dataclass
+class DesignSearchConfig:
+    """posterior.surrogate.design_search.*: the global search on a sequence other than the run's own
+    (a twin) is the identification's (recon.search.*) with these replaced (`design_search_config`).
+    Its first look, its sweeps and its windows decide which basin of the rendered loss the design
+    starts in, and so where the posterior sits: on ten noisy twins at small the 90% intervals held
+    21 of 40 truths with recon.search's own settings (docs/posterior.md, "SBC at small")."""
+
+    initial_samples: int = 128  # scrambled Sobol points over the search box scored first (recon.search.initial_samples)
+    generations: int = 24  # CMA-ES generations, split over the windows (recon.search.generations)
+    line_points: int = 8  # each parameter's coordinate sweep before each window's CMA-ES (recon.search.line_points)
+    # the fit windows (shares of the fit frames) searched in turn (recon.search.frame_schedule)
+    frame_schedule: list = field(default_factory=lambda: [0.5, 1.0])
+
+
+@dataclass
 class SurrogateConfig:
     """posterior.surrogate.* (conf/posterior/default.yaml; sizes in the presets)."""
 
@@ -64,6 +79,7 @@ class SurrogateConfig:
     # (the identification's stage, recon.search.*) for the design's candidates: the run's population
     # describes the run's sequence only; False: the run's population for any sequence
     search_other_sequence: bool = True
+    design_search: DesignSearchConfig = field(default_factory=DesignSearchConfig)
     # the walkers start from the true evaluations so far, drawn with weights exp(log L - max) and
     # spread by half the spread of those within `start_within` nats of the best (`design_start`)
     start_within: float = 10.0
@@ -163,13 +179,22 @@ class GPSurrogate:
 
 def design(problem, candidates: np.ndarray, n_initial: int, n_sobol: int, seed: int) -> np.ndarray:
     """[N, D] the first design: the MAP, the given candidates inside the prior (best first, at most
-    n_initial) and n_sobol scrambled Sobol points over the prior box."""
+    n_initial distinct ones, none equal to the MAP) and n_sobol scrambled Sobol points over the
+    prior box. Candidates of a search over more parameters than the posterior samples coincide once
+    projected (a sweep over κ at the best level and μ is one point in (shift, μ)): each counts once."""
     from scipy.stats import qmc
 
     parts = [problem.map_theta[None]]
     c = np.asarray(candidates, float).reshape(-1, len(problem.names))
     if c.size and n_initial > 0:
-        parts.append(c[problem.inside(c)][: int(n_initial)])
+        c = c[problem.inside(c)]
+        seen, keep = {np.asarray(problem.map_theta, float).tobytes()}, []
+        for row in c:
+            if row.tobytes() not in seen:
+                seen.add(row.tobytes())
+                keep.append(row)
+        if keep:
+            parts.append(np.stack(keep)[: int(n_initial)])
     if n_sobol > 0:
         u = qmc.Sobol(len(problem.names), scramble=True, seed=int(seed)).random(int(n_sobol))
         parts.append(problem.low + u * (problem.high - problem.low))

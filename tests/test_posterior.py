@@ -171,6 +171,8 @@ def test_config_rules_name_the_key():
         validate(OmegaConf.to_object(compose(["preset=tiny", "posterior.n_walkers=6"])))  # 4 parameters need > 8
     with pytest.raises(ConfigError, match=r"posterior\.parameters"):
         validate(OmegaConf.to_object(compose(["preset=tiny", "posterior.parameters=[stiffness]"])))
+    with pytest.raises(ConfigError, match=r"posterior\.surrogate\.edge_points.*0 \(no edge probes\) or >= 2"):
+        validate(OmegaConf.to_object(compose(["preset=tiny", "posterior.surrogate.edge_points=1"])))
 
 
 # ---------------------------------------------------------------------------- on a tiny run
@@ -352,6 +354,7 @@ def test_tiny_rendered_posterior_converges_on_a_twin(tiny):
                 f"posterior.out_dir={out}",
                 "posterior.parameters=[log10_k_shift,friction]",
                 "posterior.n_predictive=4",
+                "posterior.surrogate.edge_points=5",
             ]
         )  # fmt: skip
     )
@@ -364,7 +367,8 @@ def test_tiny_rendered_posterior_converges_on_a_twin(tiny):
 
     # every rendered rollout once: the design (the MAP first) and the checks, the stiffness profile
     # (its 0 is the MAP)
-    assert record["cost"]["rollouts"] == sur["n_true_evaluations"] + len(PROFILE_SHIFTS) - 1
+    assert record["cost"]["rollouts"] == sur["n_distinct_evaluations"] + len(PROFILE_SHIFTS) - 1
+    assert sur["n_distinct_evaluations"] <= sur["n_true_evaluations"]
     assert record["converged"], record["failed"]
     d = record["diagnostics"]
     assert d["q05"]["log10_k_shift"] <= TRUE_SHIFT <= d["q95"]["log10_k_shift"], (d["q05"], d["q95"])
@@ -389,6 +393,9 @@ def test_tiny_rendered_posterior_converges_on_a_twin(tiny):
     assert len(ball["radius"]) == record["predictive"]["frames"] and ball["truth_inside_future"] is not None
     page = (run_dir / "report" / "report.html").read_text()
     assert "Gaussian-process surrogate" in page and "95% interval" in page
+    # the edge probes ran once the check passed, and the last round found every edge below the best
+    last = sur["rounds"][-1]
+    assert last["edges"] > 0 and last["open_edges"] == 0 and "just beyond the 90% intervals" in page
     # the likelihood's profile through the twin's truth (evaluation.studies.likelihood_profile): its
     # loss is lowest there, the twin being the model's own images
     from evaluation.studies.likelihood_profile import centre_of, parse_steps, profile

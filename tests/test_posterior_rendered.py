@@ -267,3 +267,81 @@ def test_the_gp_finds_the_rough_optimum_from_any_seed(seed):
     ll = smooth + 3.0 * np.sin(180 * thetas[:, 0]) * np.cos(150 * thetas[:, 1])
     gp = GPSurrogate(problem.low, problem.high, 60.0, seed).fit(thetas, ll)
     assert 0.7 < gp.roughness < 4.0, gp.gp.kernel_
+
+
+def _ridge_problem(ripples: float = 0.0):
+    """A long ridge along a (sd 0.2) that is thin across (sd 0.01) and leans, b = 0.5 + 0.5 (a - 0.5),
+    with deterministic ripples of `ripples` nats (the rendered loss's roughness)."""
+    problem = Problem(["a", "b"], np.array([0.0, 0.0]), np.array([1.0, 1.0]), np.array([0.5, 0.5]))
+
+    def log_like(thetas):
+        a, b = np.atleast_2d(thetas).T
+        ridge = -0.5 * ((a - 0.5) / 0.2) ** 2 - 0.5 * ((b - 0.5 - 0.5 * (a - 0.5)) / 0.01) ** 2
+        return ridge + ripples * np.sin(180 * a) * np.cos(150 * b)
+
+    return problem, log_like
+
+
+def test_edges_sit_one_interval_width_beyond_each_side_inside_the_prior_on_the_draws_regression():
+    from sgdr.posterior.surrogate import edge_starts
+
+    problem = Problem(["a", "b"], np.array([0.0, 0.0]), np.array([1.0, 1.0]), np.array([0.5, 0.5]))
+    rng = np.random.default_rng(0)
+    a = rng.normal(0.5, 0.05, 4000)
+    pool = np.column_stack([a, (0.015 + 0.1 * (a - 0.5) + rng.normal(0, 0.005, a.size)).clip(0, 1)])
+    params, points, axes = edge_starts(pool, problem)
+    q05, q95 = np.quantile(pool, [0.05, 0.95], axis=0)
+    assert params == [0, 0, 1]  # b's lower side: the prior's bound is nearer than half the distance
+    assert points[0, 0] == pytest.approx(q05[0] - (q95[0] - q05[0]))
+    assert points[1, 0] == pytest.approx(q95[0] + (q95[0] - q05[0]))
+    # b follows the draws' leaning (0.1 per unit of a) to the edge; its axis there is b's sd given a
+    assert points[1, 1] == pytest.approx(0.015 + 0.1 * (points[1, 0] - 0.5), abs=0.002)
+    assert abs(axes[1][1, 0]) == pytest.approx(0.005, rel=0.1) and axes[1][0, 0] == 0.0
+    assert points[2, 1] == pytest.approx(q95[1] + (q95[1] - q05[1]))
+
+
+def test_edge_probes_find_a_leaning_ridge_and_stay_low_around_a_posterior_that_reaches_far_enough():
+    from sgdr.posterior.surrogate import probe_edges
+
+    problem, log_like = _ridge_problem()
+    rng = np.random.default_rng(1)
+    # too narrow along the ridge (a sd 0.03 instead of 0.2): the ridge goes on past its edges in a
+    a = rng.normal(0.5, 0.03, 4000)
+    narrow = np.column_stack([a, 0.5 + 0.5 * (a - 0.5) + rng.normal(0, 0.01, a.size)])
+    probes, ll, edge_ll = probe_edges(log_like, narrow, problem, 9)
+    assert probes.shape == (ll.size, 2) and np.allclose(ll, log_like(probes))
+    q = np.quantile(a, [0.05, 0.95])
+    ridge_there = -0.5 * ((q + np.array([-1, 1]) * np.ptp(q) - 0.5) / 0.2) ** 2
+    assert np.all(edge_ll[:2] > ridge_there - 1.0) and np.all(edge_ll[:2] > -3.0)  # found where the ridge passes
+    # the exact posterior (a correlated Gaussian): every edge's profile 3.3 sd out, ~5.4 nats down
+    cov = np.array([[0.2**2, 0.5 * 0.2**2], [0.5 * 0.2**2, 0.25 * 0.2**2 + 0.01**2]])
+    exact = rng.multivariate_normal([0.5, 0.5], cov, 4000)
+    exact = exact[np.all((exact > 0) & (exact < 1), axis=1)]
+    _, _, edge_ll = probe_edges(log_like, exact, problem, 9)
+    assert edge_ll.size > 0 and np.all(edge_ll < -3.0), edge_ll
+
+
+def test_edge_probes_carry_the_surrogate_along_a_ridge_its_first_design_did_not_reach():
+    """The first design covers a rough ridge only near its middle: the check alone passes there and
+    the posterior stays about as narrow as the design; with edge probes the first round finds the
+    ridge going on, and the next round's 90% interval of a is far wider (the truth's [0.17, 0.83],
+    the prior's bound at 2.5 sd)."""
+    problem, log_like = _ridge_problem(ripples=2.0)
+    a = np.linspace(0.44, 0.56, 9)
+    on = np.column_stack([a, 0.5 + 0.5 * (a - 0.5)])
+    sobol = design(problem, np.zeros((0, 2)), 0, 16, seed=0)[1:]
+    start = np.vstack([on, on + [0, 0.02], on - [0, 0.02], on + [0, 0.05], on - [0, 0.05], sobol])
+
+    def chains_of(lp, walkers):
+        return run_ensembles(lp, problem, 10, 1500, 4, 0.05, seed=0, move="de", space="logit", start=walkers)
+
+    runs = {}
+    for edges in (0, 9):
+        sc = SurrogateConfig(n_initial=0, n_sobol=0, n_validate=32, max_rounds=6, chain_steps=1500, edge_points=edges)
+        chains, _, _, record = sample_with_surrogate(log_like, problem, start, sc, chains_of, seed=0)
+        pooled = chains[:, chains.shape[1] // 2 :].reshape(-1, 2)
+        runs[edges] = (record, np.quantile(pooled[:, 0], [0.05, 0.95]))
+    (plain, span0), (probed, span9) = runs[0], runs[9]
+    assert plain.validated and np.ptp(span0) < 0.3, span0
+    assert probed.rounds[0]["open_edges"] > 0 and probed.rounds[-1]["open_edges"] == 0 and probed.validated
+    assert np.ptp(span9) > 0.4 and span9[0] < 0.33 and span9[1] > 0.67, span9

@@ -87,6 +87,8 @@ SURROGATE_CHECKS = {
     "inside_min": between(0.0, 1.0, lo_open=True),
     "search_other_sequence": choice((True, False)),
     "start_within": positive(),
+    "edge_points": Check(lambda x: isinstance(x, int) and (x == 0 or x >= 2), "must be 0 (no edge probes) or >= 2"),
+    "edge_within": positive(),
 }
 
 DESIGN_SEARCH_CHECKS = {

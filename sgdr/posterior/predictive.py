@@ -464,6 +464,12 @@ def _sampling_words(record: dict) -> str:
             f"{last['rmse_nats']:.2f} nats RMS, mean {last['mean_error_nats']:+.2f}, fitted roughness "
             f"{last['roughness_nats']:.2f} nats, PSIS k-hat of the rough one {last['khat']:.2f})"
         )
+        if "edges" in last:
+            gap = min(last["edge_log_like_below_best"], default=float("inf"))
+            words += (
+                f"; just beyond the 90% intervals ({last['edges']} edges) the likelihood's profile stayed at least "
+                f"{gap:.1f} nats below the best evaluation"
+            )
     return (
         words + f"; burn-in {d['burn_in']} steps, thinning {d['thin']}, {d['n_kept']} samples kept; "
         f"{record['cost']['rollouts']} rendered or simulated rollouts in {record['cost']['seconds']:.0f} s."

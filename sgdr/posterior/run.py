@@ -109,10 +109,15 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
         diag = diagnose(chains, problem.names, pc, acceptance)
     if surrogate is not None and not surrogate.validated:
         last = surrogate.rounds[-1]
+        if last.get("open_edges"):
+            why = (f"{last['open_edges']} of its {last['edges']} edge probes within {pc.surrogate.edge_within:g} nats "
+                   f"of the best: the likelihood reaches beyond the chains (posterior.surrogate.edge_points)")  # fmt: skip
+        else:
+            why = (f"{last['inside_95']:.0%} of its last draws inside its 95% interval, < "
+                   f"{pc.surrogate.inside_min:g}")  # fmt: skip
         diag["failed"].append(
             f"the surrogate did not stand for the rendered likelihood after {len(surrogate.rounds)} round(s): "
-            f"{last['inside_95']:.0%} of its last draws inside its 95% interval, < {pc.surrogate.inside_min:g} "
-            f"(posterior.surrogate.max_rounds, posterior.surrogate.n_validate)"
+            f"{why} (posterior.surrogate.max_rounds, posterior.surrogate.n_validate)"
         )
         diag["converged"] = False
     kept = kept_samples(chains, diag)

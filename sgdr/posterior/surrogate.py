@@ -55,7 +55,8 @@ class DesignSearchConfig:
     (a twin) is the identification's (recon.search.*) with these replaced (`design_search_config`).
     Its first look, its sweeps and its windows decide which basin of the rendered loss the design
     starts in, and so where the posterior sits: on ten noisy twins at small the 90% intervals held
-    21 of 40 truths with recon.search's own settings (docs/posterior.md, "SBC at small")."""
+    21 of 40 truths with a 32-point first look and no sweep, 30 with the small preset's 128 points
+    and 8 sweep points (docs/posterior.md, "SBC at small")."""
 
     initial_samples: int = 128  # scrambled Sobol points over the search box scored first (recon.search.initial_samples)
     generations: int = 24  # CMA-ES generations, split over the windows (recon.search.generations)
@@ -83,6 +84,13 @@ class SurrogateConfig:
     # the walkers start from the true evaluations so far, drawn with weights exp(log L - max) and
     # spread by half the spread of those within `start_within` nats of the best (`design_start`)
     start_within: float = 10.0
+    # edge probes (0: none): once the check passes, the likelihood's profile just beyond each side of
+    # each parameter's 90% interval (`probe_edges`, this many points a line); a probe within
+    # `edge_within` nats of the best evaluation means the posterior reaches further than the
+    # surrogate knows (a ridge its chains never went along): the probes join the design and
+    # another round follows
+    edge_points: int = 0
+    edge_within: float = 3.0
 
 
 @dataclass
@@ -100,6 +108,8 @@ class SurrogateRecord:
         best = int(np.argmax(self.log_like)) if self.log_like.size else -1
         return {
             "n_true_evaluations": int(self.log_like.size),
+            # a θ met twice (an edge probe's line clipped onto the prior's bound) is rendered once
+            "n_distinct_evaluations": int(len(np.unique(self.thetas, axis=0))) if self.thetas.size else 0,
             "rounds": self.rounds,
             "validated": bool(self.validated),
             "best_theta": self.thetas[best].tolist() if best >= 0 else None,
@@ -228,6 +238,73 @@ def design_start(thetas: np.ndarray, log_like: np.ndarray, problem, within: floa
     return start
 
 
+EDGE_BEYOND = 1.0  # how far beyond each side of a 90% interval its edge probe sits, in interval widths
+EDGE_SPREAD = 4.0  # an edge's lines: its start ± this many conditional sd along each principal axis
+
+
+def edge_starts(pool: np.ndarray, problem) -> tuple[list[int], np.ndarray, list[np.ndarray]]:
+    """The edges of the posterior draws `pool` [N, D]: per parameter j and side, θ_j `EDGE_BEYOND`
+    widths of its 90% interval beyond the interval's end (inside the prior; a side whose move the
+    prior's bound leaves shorter than half that gets none), the others at their mean given θ_j (the
+    draws' linear regression on θ_j: a ridge that leans is followed, not left). Returns (each
+    edge's parameter, [M, D] the starts, each edge's [D, D] axes: the other parameters' covariance
+    given θ_j, as columns scaled to one sd, zero in row j). For a Gaussian posterior an edge lies
+    3.3 sd out, 5.4 nats below its peak."""
+    q05, q95 = np.quantile(pool, [0.05, 0.95], axis=0)
+    mean, cov = pool.mean(axis=0), np.atleast_2d(np.cov(pool.T))
+    d = pool.shape[1]
+    params, points, axes = [], [], []
+    for j in range(d):
+        width = q95[j] - q05[j]
+        if width <= 0 or cov[j, j] <= 0:
+            continue
+        others = [i for i in range(d) if i != j]
+        slope = cov[others, j] / cov[j, j]
+        given = cov[np.ix_(others, others)] - np.outer(slope, cov[j, others])
+        w, v = np.linalg.eigh(given) if others else (np.zeros(0), np.zeros((0, 0)))
+        scaled = np.zeros((d, len(others)))
+        scaled[others] = v * np.sqrt(np.clip(w, 0.0, None))
+        for end, side in ((q05[j], -1.0), (q95[j], 1.0)):
+            value = float(np.clip(end + side * EDGE_BEYOND * width, problem.low[j], problem.high[j]))
+            if abs(value - end) < 0.5 * EDGE_BEYOND * width:
+                continue
+            point = mean.copy()
+            point[j] = value
+            point[others] = mean[others] + slope * (value - mean[j])
+            params.append(j)
+            points.append(np.clip(point, problem.low, problem.high))
+            axes.append(scaled)
+    return params, np.array(points).reshape(-1, d), axes
+
+
+def probe_edges(true_log_like, pool: np.ndarray, problem, n_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The likelihood's profile at each edge of the posterior draws `pool` (`edge_starts`): the
+    edge's parameter held, lines of `n_points` through the edge's best so far along each principal
+    axis of the other parameters' covariance given it (± `EDGE_SPREAD` sd, inside the prior), the
+    best moving with each line: a coordinate sweep in the posterior's own whitened coordinates,
+    fine where the ridge is thin. One batched call of `true_log_like` per axis for all edges.
+    Returns (every probe [P, D], its log L [P], the best log L at each edge [M])."""
+    params, best, axes = edge_starts(pool, problem)
+    d = pool.shape[1]
+    if not params:
+        return np.zeros((0, d)), np.zeros(0), np.zeros(0)
+    t = np.linspace(-EDGE_SPREAD, EDGE_SPREAD, int(n_points))
+    best_ll = np.full(len(params), -np.inf)
+    thetas, lls = [], []
+    for k in range(d - 1):
+        trial = np.concatenate([best[m][None] + t[:, None] * axes[m][:, k][None] for m in range(len(params))])
+        trial = np.clip(trial, problem.low, problem.high)
+        ll = np.asarray(true_log_like(trial), float)
+        thetas.append(trial)
+        lls.append(ll)
+        for m in range(len(params)):
+            row = np.where(np.isfinite(ll[m * t.size : (m + 1) * t.size]), ll[m * t.size : (m + 1) * t.size], -np.inf)
+            i = int(np.argmax(row))
+            if row[i] > best_ll[m]:
+                best_ll[m], best[m] = row[i], trial[m * t.size + i]
+    return np.concatenate(thetas), np.concatenate(lls), best_ll
+
+
 def psis_khat(log_weights: np.ndarray) -> float:
     """ArviZ's Pareto k̂ of importance log-weights (inf when fewer than 2 are finite, 0 when all
     are equal). A draw whose true likelihood is -inf (an unstable rollout) carries weight 0 and
@@ -298,6 +375,21 @@ def sample_with_surrogate(true_log_like, problem, start: np.ndarray, sc: Surroga
                  surrogate.roughness, khat)  # fmt: skip
         if progress:
             print(f"posterior surrogate: round {r + 1}: {covered:.0%} inside, rmse {rmse:.2f} nats", flush=True)
+        if covered >= sc.inside_min and int(sc.edge_points) > 0:
+            # the check holds where the chains went; whether the likelihood goes on beyond their reach
+            probes, probe_ll, edge_ll = probe_edges(true_log_like, pool, problem, int(sc.edge_points))
+            top = float(np.max(record.log_like[np.isfinite(record.log_like)], initial=-np.inf))
+            record.thetas = np.concatenate([record.thetas, probes])
+            record.log_like = np.concatenate([record.log_like, probe_ll])
+            open_edges = int(np.sum(edge_ll >= top - float(sc.edge_within)))
+            record.rounds[-1].update(
+                {"edges": int(edge_ll.size), "edge_probes": int(probe_ll.size), "open_edges": open_edges,
+                 "edge_log_like_below_best": [float(top - v) for v in edge_ll], "seconds": float(time.time() - t_round)}
+            )  # fmt: skip
+            log.info("posterior surrogate: round %d, %d edges probed (%d rollouts), %d within %.1f nats of the best",
+                     r + 1, edge_ll.size, probe_ll.size, open_edges, sc.edge_within)  # fmt: skip
+            if open_edges:
+                continue
         if covered >= sc.inside_min:
             record.validated = True
             break

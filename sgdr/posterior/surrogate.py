@@ -297,8 +297,8 @@ def probe_edges(true_log_like, pool: np.ndarray, problem, n_points: int) -> tupl
         ll = np.asarray(true_log_like(trial), float)
         thetas.append(trial)
         lls.append(ll)
-        for m in range(len(params)):
-            row = np.where(np.isfinite(ll[m * t.size : (m + 1) * t.size]), ll[m * t.size : (m + 1) * t.size], -np.inf)
+        rows = np.where(np.isfinite(ll), ll, -np.inf).reshape(len(params), t.size)  # one line per edge
+        for m, row in enumerate(rows):
             i = int(np.argmax(row))
             if row[i] > best_ll[m]:
                 best_ll[m], best[m] = row[i], trial[m * t.size + i]

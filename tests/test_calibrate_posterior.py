@@ -1,5 +1,5 @@
-"""The calibration study's bookkeeping (evaluation/studies/calibrate_posterior.py): truths drawn inside
-the prior's middle, SBC ranks, coverage and rank histograms."""
+"""The calibration study's bookkeeping (evaluation/studies/calibrate_posterior.py): truths drawn from
+the prior, SBC ranks, coverage and rank histograms."""
 
 import numpy as np
 import pytest
@@ -8,16 +8,45 @@ from evaluation.studies.calibrate_posterior import N_BINS, draw_truth, sbc_rank,
 from sgdr.posterior.config import PriorConfig
 
 
-def test_truths_are_seeded_and_inside_the_middle_of_the_prior():
+def test_truths_are_seeded_and_drawn_from_the_whole_prior_or_its_middle():
     priors = PriorConfig()
     names = ["log10_k_shift", "friction"]
-    draws = [draw_truth(priors, names, case) for case in range(50)]
+    draws = [draw_truth(priors, names, case) for case in range(200)]
     assert draw_truth(priors, names, 3) == draws[3]  # the same case draws the same truth
+    middle = [draw_truth(priors, names, case, 0.1) for case in range(200)]
     for n in names:
         lo, hi = getattr(priors, n)
-        xs = np.array([d[n] for d in draws])
-        assert np.all(xs >= lo + 0.1 * (hi - lo)) and np.all(xs <= hi - 0.1 * (hi - lo))
-        assert xs.std() > 0.15 * (hi - lo)  # spread over the box, not one value
+        xs, inner = np.array([d[n] for d in draws]), np.array([d[n] for d in middle])
+        assert np.all(xs >= lo) and np.all(xs <= hi)
+        # the SBC's design: the whole box, its outer fifth included (about 40 of 200 draws)
+        outer = (xs < lo + 0.1 * (hi - lo)) | (xs > hi - 0.1 * (hi - lo))
+        assert 20 < outer.sum() < 60
+        assert np.all(inner >= lo + 0.1 * (hi - lo)) and np.all(inner <= hi - 0.1 * (hi - lo))
+        assert inner.std() > 0.15 * (hi - lo)  # spread over the box, not one value
+    with pytest.raises(SystemExit, match="truth_margin"):
+        draw_truth(priors, names, 0, 0.5)
+
+
+def test_a_record_drawn_from_the_priors_middle_is_continued_only_with_its_margin(tmp_path):
+    """Records written before truths came from the whole box have no truth_margin in their setup:
+    the default refuses them with the override that continues them, which is accepted."""
+    import json
+
+    from omegaconf import OmegaConf
+
+    from evaluation.studies.calibrate_posterior import TRUTH_MARGIN_BEFORE, calibrate, locked_record, sampler_setup
+    from sgdr.config import compose
+
+    cfg = OmegaConf.to_object(compose(["preset=tiny", f"posterior.run={tmp_path / 'no_run'}"]))
+    old = sampler_setup(cfg, 1, 0.02, TRUTH_MARGIN_BEFORE)
+    assert "truth_margin" not in old and sampler_setup(cfg, 1, 0.02)["truth_margin"] == 0.0
+    record = tmp_path / "calibration.json"
+    record.write_text(json.dumps({"cases": [{"case": 0}], "setup": old}))
+    with pytest.raises(SystemExit, match=r"\+truth_margin=0.1 continues it"):
+        calibrate(cfg, 1, tmp_path / "cases", progress=False, record_file=record, twin_noise=0.02)
+    with locked_record(record, sampler_setup(cfg, 1, 0.02, TRUTH_MARGIN_BEFORE)) as kept:  # the old margin: its setup
+        assert [c["case"] for c in kept["cases"]] == [0]
+    assert not (tmp_path / "cases" / "case_000").exists()
 
 
 def test_ranks_and_summary():

@@ -14,8 +14,11 @@ results/ while the case folders stay in `<out>`; per case: truth, median, 5%, 95
 converged, τ, R-hat, the asset's digest; per parameter: coverage and the rank histogram, over all
 cases and over the converged ones) and `<out>/ranks.png`; the last line printed is one JSON
 object with the coverages. Cases already in the record are kept (resumable over sittings; a
-record written with another sampler setup is refused). `+twin_scale=s` renders the twins s
-times finer than the asset's cameras; `+twin_noise=σ` adds Gaussian noise of that standard
+record written with another sampler setup is refused). Truths come from the whole prior box (the
+SBC's design); `+truth_margin=m` keeps them the fraction m of each box away from its edges (0.1 in
+the records before 2026-12-06, whose ranks pile up in the middle wherever the data leave a
+parameter to its prior); `+first_case=c` numbers the cases from c (another draw of truths and
+noise, into a new record). `+twin_scale=s` renders the twins s times finer than the asset's cameras; `+twin_noise=σ` adds Gaussian noise of that standard
 deviation to the twins' colours (seeded by the case: data of the kind the likelihood models).
 `+shard=i/n` runs only the cases with case % n == i, so that n processes (one per core) share one
 record: each case is merged into it under a file lock.
@@ -44,14 +47,23 @@ from sgdr.synth.twin import twin_sequence
 N_BINS = 5  # rank histogram bins (few cases: coarse bins)
 
 
-def draw_truth(priors, names, case: int) -> dict:
-    """One truth per case, uniform in each sampled parameter's prior box; the middle 80% of the
-    box, so that a truth is never at a hard edge where no interval can cover it from both sides."""
+TRUTH_MARGIN_BEFORE = 0.1  # records without "truth_margin" in their setup drew from the middle 80%
+
+
+def draw_truth(priors, names, case: int, margin: float = 0.0) -> dict:
+    """One truth per case, uniform in each sampled parameter's prior box (seeded by the case).
+    `margin` > 0 keeps it that fraction of the box away from each edge (the records before
+    2026-12-06 used 0.1): the ranks of a calibrated posterior are then uniform only where the data
+    pin the parameter down; where the posterior is close to the prior they pile up in the middle
+    (a truth in the middle 80% of a box-shaped posterior has a rank in [0.1, 0.9]). 0, the
+    default, is the SBC's own design (Talts et al. 2018: the truth drawn from the prior)."""
+    if not 0.0 <= margin < 0.5:
+        raise SystemExit(f"error: +truth_margin={margin}: need 0 <= margin < 0.5 (a fraction of each prior box)")
     rng = np.random.default_rng([2026, case])
     out = {}
     for n in names:
         lo, hi = map(float, getattr(priors, n))
-        out[n] = float(lo + (hi - lo) * rng.uniform(0.1, 0.9))
+        out[n] = float(lo + (hi - lo) * rng.uniform(margin, 1.0 - margin))
     return out
 
 
@@ -131,8 +143,14 @@ def locked_record(record_file: Path, setup: dict):
         try:
             record = json.loads(record_file.read_text()) if record_file.exists() else {"cases": [], "setup": setup}
             if record.setdefault("setup", setup) != setup:
+                hint = ""
+                if "truth_margin" not in record["setup"] and setup.get("truth_margin") is not None:
+                    hint = (
+                        f" (its truths came from the prior's middle: +truth_margin={TRUTH_MARGIN_BEFORE} continues it)"
+                    )
                 raise SystemExit(
-                    f"error: {record_file} was written with {record['setup']}, not {setup}: use another +out= or remove it"
+                    f"error: {record_file} was written with {record['setup']}, not {setup}{hint}: "
+                    "use another +out= or +record=, or remove it"
                 )
             yield record
         finally:
@@ -152,8 +170,9 @@ def parse_shard(text: str | None) -> tuple[int, int]:
     return i, n
 
 
-def sampler_setup(cfg, twin_scale: int, twin_noise: float = 0.0) -> dict:
-    """What a record's cases must share: the twins' scale, the sampler's settings and, where the
+def sampler_setup(cfg, twin_scale: int, twin_noise: float = 0.0, truth_margin: float = 0.0) -> dict:
+    """What a record's cases must share: the twins' scale and noise, how truths are drawn
+    (`truth_margin`; absent in the records that drew from the middle 80%), the sampler's settings and, where the
     design comes from a global search on each twin's images (`posterior.surrogate.search_other_sequence`),
     that search's settings (`design_search_config`: its budget and schedule decide which basin is found)."""
     pc = cfg.posterior
@@ -165,6 +184,7 @@ def sampler_setup(cfg, twin_scale: int, twin_noise: float = 0.0) -> dict:
     return {
         "twin_scale": int(twin_scale),
         **({"twin_noise": float(twin_noise)} if twin_noise else {}),  # absent without: older records stand
+        **({"truth_margin": float(truth_margin)} if truth_margin != TRUTH_MARGIN_BEFORE else {}),
         "likelihood": pc.likelihood,
         "sampler": pc.sampler,
         "surrogate": surrogate if pc.sampler == "surrogate" else None,
@@ -195,13 +215,22 @@ def same_twin(twin: Path, asset_dir: Path, truth: dict, twin_scale: int, twin_no
     )
 
 
-def run_case(cfg, case: int, asset_dir: Path, digest: str, out: Path, twin_scale: int, twin_noise: float = 0.0) -> dict:
+def run_case(
+    cfg,
+    case: int,
+    asset_dir: Path,
+    digest: str,
+    out: Path,
+    twin_scale: int,
+    twin_noise: float = 0.0,
+    truth_margin: float = 0.0,
+) -> dict:
     """One case: a truth drawn from the prior, its twin rendered from the asset (`digest`: its
     asset.json's), the posterior on the twin's images; the record's entry (truth, median, 5%, 95%,
     inside, rank, diagnostics)."""
     pc = cfg.posterior
     names = list(pc.parameters)
-    truth = draw_truth(pc.priors, names, case)
+    truth = draw_truth(pc.priors, names, case, truth_margin)
     case_dir = out / f"case_{case:03d}"
     twin = case_dir / "twin"
     # a resumed case keeps its twin, and with it the design search its posterior kept
@@ -243,27 +272,31 @@ def calibrate(
     record_file: Path | None = None,
     shard: tuple[int, int] = (0, 1),
     twin_noise: float = 0.0,
+    truth_margin: float = 0.0,
+    first_case: int = 0,
 ) -> dict:
-    """`n_cases` twins of `posterior.run`'s asset, each rendered `twin_scale` times finer than its
-    cameras, and their posteriors; resumable (cases in `record_file`, default
-    `<out>/calibration.json`, are kept, and a record written with another setup is refused).
-    `shard=(i, n)` runs the cases with case % n == i; shards merge into one record."""
+    """`n_cases` twins of `posterior.run`'s asset (cases `first_case`, ..., each case's truth and
+    noise seeded by its number), each rendered `twin_scale` times finer than its cameras, and their
+    posteriors; resumable (cases in `record_file`, default `<out>/calibration.json`, are kept, and
+    a record written with another setup is refused). `shard=(i, n)` runs the cases with
+    case % n == i; shards merge into one record."""
     out.mkdir(parents=True, exist_ok=True)
     record_file = Path(record_file) if record_file else out / "calibration.json"
     record_file.parent.mkdir(parents=True, exist_ok=True)
-    setup = sampler_setup(cfg, twin_scale, twin_noise)
+    draw_truth(cfg.posterior.priors, [], 0, truth_margin)  # a bad margin is refused before any work
+    setup = sampler_setup(cfg, twin_scale, twin_noise, truth_margin)
     with locked_record(record_file, setup):
         pass  # refuses a record of another setup before any work
     names = list(cfg.posterior.parameters)
     asset_dir = Path(cfg.posterior.run) / "asset"
     digest = hashlib.sha256((asset_dir / "asset.json").read_bytes()).hexdigest()[:12]
-    for case in range(n_cases):
+    for case in range(first_case, first_case + n_cases):
         if case % shard[1] != shard[0]:
             continue
         with locked_record(record_file, setup) as record:
             if case in {c["case"] for c in record["cases"]}:
                 continue
-        entry = run_case(cfg, case, asset_dir, digest, out, twin_scale, twin_noise)
+        entry = run_case(cfg, case, asset_dir, digest, out, twin_scale, twin_noise, truth_margin)
         with locked_record(record_file, setup) as record:
             record["cases"] = sorted(
                 [c for c in record["cases"] if c["case"] != case] + [entry], key=lambda c: c["case"]
@@ -302,6 +335,8 @@ def main(argv: list[str]) -> None:
             record_file=record_file,
             shard=parse_shard(extra.get("shard")),
             twin_noise=float(extra.get("twin_noise", 0.0)),
+            truth_margin=float(extra.get("truth_margin", 0.0)),
+            first_case=int(extra.get("first_case", 0)),
         )
     summary = {n: s["coverage_90"] for n, s in record["summary"].items()}
     conv = {n: s["coverage_90"] for n, s in record["summary_converged"].items()}

@@ -4,6 +4,8 @@
     python -m evaluation.studies.posterior_objects --objects torus,cream --set posterior.n_steps=80
     python -m evaluation.studies.posterior_objects --summary             # the table, from the results file
     python -m evaluation.studies.posterior_objects --jobs 2 --threads 1  # two objects at a time
+    python -m evaluation.studies.posterior_objects --summary --runs 'outputs/{object}_{preset}_s1' \
+        --results results/posterior_objects_small_s1.jsonl --pool results/posterior_objects_small.jsonl
 
 For each object's finished reconstruction (`outputs/<object>_<preset>_s0`, as `make reproduce` or
 `make demo` leaves it) `experiments/posterior.py` computes the posterior of the run's physics on
@@ -21,7 +23,9 @@ evaluation/studies/calibrate_posterior.py).
 The summary also calibrates the forecast's model discrepancy (`posterior.discrepancy_growth`,
 sgdr/posterior/forecast.py) leave-one-object-out: γ from every other object's future frames, the
 held-out object's share of future frames whose true centre of mass lies in the 90% ball with it;
-and γ from all of them, the default for data the calibration has not seen.
+and γ from all of them, the default for data the calibration has not seen. `--pool FILE` adds
+another draw of runs (e.g. the objects reconstructed at another seed) to the calibration; an
+object is then left out with all its runs.
 """
 
 from __future__ import annotations
@@ -99,16 +103,23 @@ def _ball_case(ball: dict | None) -> dict | None:
     return {k: ball[k] for k in ("sigma_fit", "fps", "size", "draws", "centre", "truth", "growth", "level")}
 
 
-def leave_one_out(results: dict, level: float = 0.9) -> dict:
+def leave_one_out(results: dict, level: float = 0.9, pool: tuple = ()) -> dict:
     """γ (posterior.discrepancy_growth) calibrated on every object but one and the held-out
     object's future coverage of the ball with it; and γ on all of them (the default for new data).
-    Only objects whose record holds the ball's case take part."""
+    Only objects whose record holds the ball's case take part. `pool`: the records of further
+    draws of runs (dicts object -> record, e.g. the same objects reconstructed at another seed):
+    their cases join the calibration, and an object is left out with every draw's run of it."""
     from sgdr.posterior.forecast import calibrate_growth, coverage
 
-    cases = {o: r["ball"] for o, r in results.items() if r.get("ball")}
-    out = {"objects": {}, "growth_all": calibrate_growth(list(cases.values()), level) if cases else None}
-    for obj, case in cases.items():
-        others = [c for o, c in cases.items() if o != obj]
+    cases = [(o, r["ball"]) for o, r in results.items() if r.get("ball")]
+    every = cases + [(o, r["ball"]) for draw in pool for o, r in draw.items() if r.get("ball")]
+    out = {
+        "objects": {},
+        "calibration_runs": len(every),
+        "growth_all": calibrate_growth([c for _, c in every], level) if every else None,
+    }
+    for obj, case in cases:
+        others = [c for o, c in every if o != obj]
         if not others:
             continue
         growth = calibrate_growth(others, level)
@@ -123,14 +134,14 @@ def _fmt(x, spec=".3g"):
     return "-" if x is None else format(x, spec)
 
 
-def markdown(results: dict) -> str:
+def markdown(results: dict, pool: tuple = ()) -> str:
     lines = [
         "| object | converged | log10 k shift 5-95% | com in band, future (height / displacement) "
         "| com in the 90% ball, future (leave-one-out γ) | future CD: posterior median / point estimate / still "
         "| minutes |",
         "|---|---|---|---|---|---|---|",
     ]
-    loo = leave_one_out(results)["objects"]
+    loo = leave_one_out(results, pool=pool)["objects"]
     for obj, r in results.items():
         shift = "-"
         if "log10_k_shift" in r["median"]:
@@ -145,7 +156,7 @@ def markdown(results: dict) -> str:
     return "\n".join(lines)
 
 
-def summary(results: dict) -> dict:
+def summary(results: dict, pool: tuple = ()) -> dict:
     rows = list(results.values())
 
     def mean(key):
@@ -155,7 +166,7 @@ def summary(results: dict) -> dict:
     return {
         "objects": len(rows),
         "converged": sum(bool(r["converged"]) for r in rows),
-        "leave_one_out": leave_one_out(results),
+        "leave_one_out": leave_one_out(results, pool=pool),
         "ball_inside_future_mean": mean("ball_inside_future"),
         "com_inside_future_mean": mean("com_inside_future"),
         "com_disp_inside_future_mean": mean("com_disp_inside_future"),
@@ -193,12 +204,22 @@ def main(argv=None) -> int:
     p.add_argument("--set", action="append", default=[], help="a config override for every posterior (key=value)")
     p.add_argument("--rerun", action="store_true", help="run objects already in the results file again")
     p.add_argument("--summary", action="store_true", help="print the table and the summary, run nothing")
+    p.add_argument(
+        "--pool",
+        action="append",
+        default=[],
+        help="another draw's results file whose runs join the discrepancy's calibration (leave one object out)",
+    )
     args = p.parse_args(argv)
     results_path = Path(args.results or ROOT / "results" / f"posterior_objects_{args.preset}.jsonl")
     results = read_results(results_path)
+    missing_pool = [f for f in args.pool if not Path(f).is_file()]
+    if missing_pool:
+        raise SystemExit(f"error: --pool: no results file {', '.join(missing_pool)}")
+    pool = tuple(read_results(Path(f)) for f in args.pool)
     if args.summary:
-        print(markdown(results))
-        print(json.dumps(summary(results)))
+        print(markdown(results, pool))
+        print(json.dumps(summary(results, pool)))
         return 0
     objects = [o for o in args.objects.split(",") if o]
     runs = {o: Path(args.runs.format(object=o, preset=args.preset)) for o in objects}
@@ -230,11 +251,11 @@ def main(argv=None) -> int:
         print(f"{obj}: {post['headline'][:100]} ({rec['seconds'] / 60:.1f} min)", flush=True)
 
     lock = threading.Lock()
-    with ThreadPoolExecutor(max(1, args.jobs)) as pool:
-        list(pool.map(one, todo))
+    with ThreadPoolExecutor(max(1, args.jobs)) as executor:
+        list(executor.map(one, todo))
     results = read_results(results_path)
-    print(markdown(results))
-    print(json.dumps(summary(results)))
+    print(markdown(results, pool))
+    print(json.dumps(summary(results, pool)))
     return 0
 
 

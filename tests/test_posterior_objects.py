@@ -1,0 +1,38 @@
+"""The seven objects' study: the discrepancy's leave-one-object-out calibration over draws of runs."""
+
+import numpy as np
+
+from evaluation.studies.posterior_objects import leave_one_out
+
+
+def _case(speed: float, seed: int, t: int = 30, n_fit: int = 10) -> dict:
+    """A ball case whose truth leaves the asset's (still) prediction at `speed` sizes per second."""
+    rng = np.random.default_rng(seed)
+    h = np.maximum(np.arange(t) - n_fit + 1, 0) / 24.0
+    truth = np.zeros((t, 3))
+    truth[:, 0] = speed * 0.5 * h + rng.normal(0, 0.0005, t)
+    return {"draws": np.zeros((4, t, 3)), "centre": np.zeros((t, 3)), "truth": truth,
+            "sigma_fit": np.full(n_fit, 0.002), "fps": 24.0, "size": 0.5}  # fmt: skip
+
+
+def test_a_pooled_draw_joins_the_calibration_and_leaves_with_its_object():
+    """Three objects that follow their asset: γ = 0 and each held-out object is covered. A second
+    draw in which a and b drift raises c's γ (both drifting runs calibrate it) more than b's (b's
+    own run leaves with b); a drifting run of a alone never calibrates a, and pooled runs are not
+    scored themselves."""
+    still = {o: {"ball": _case(0.0, k)} for k, o in enumerate("abc")}
+    alone = leave_one_out(still)
+    assert alone["growth_all"] == 0.0 and alone["calibration_runs"] == 3
+    assert all(v["growth"] == 0.0 and v["inside_future"] == 1.0 for v in alone["objects"].values())
+
+    drifting = {"a": {"ball": _case(0.6, 10)}, "b": {"ball": _case(0.6, 11)}}
+    pooled = leave_one_out(still, pool=(drifting,))
+    assert pooled["calibration_runs"] == 5 and pooled["growth_all"] > 0
+    # c is calibrated on both drifting runs, b on one (a's): b's own run is left out with b
+    assert pooled["objects"]["c"]["growth"] > 0
+    assert pooled["objects"]["b"]["growth"] < pooled["objects"]["c"]["growth"]
+
+    only_a = leave_one_out(still, pool=({"a": {"ball": _case(0.6, 12)}},))
+    assert only_a["objects"]["a"]["growth"] == 0.0  # a's own drifting run never calibrates a
+    assert only_a["objects"]["b"]["growth"] > 0
+    assert set(only_a["objects"]) == {"a", "b", "c"}  # pooled runs are not scored

@@ -4,8 +4,8 @@
     python -m evaluation.studies.posterior_objects --objects torus,cream --set posterior.n_steps=80
     python -m evaluation.studies.posterior_objects --summary             # the table, from the results file
     python -m evaluation.studies.posterior_objects --jobs 2 --threads 1  # two objects at a time
-    python -m evaluation.studies.posterior_objects --summary --runs 'outputs/{object}_{preset}_s1' \
-        --results results/posterior_objects_small_s1.jsonl --pool results/posterior_objects_small.jsonl
+    python -m evaluation.studies.posterior_objects --summary --results results/posterior_objects_small_s1.jsonl \
+        --pool results/posterior_objects_small_runs1206.jsonl    # γ left one object out over two draws
 
 For each object's finished reconstruction (`outputs/<object>_<preset>_s0`, as `make reproduce` or
 `make demo` leaves it) `experiments/posterior.py` computes the posterior of the run's physics on
@@ -134,14 +134,14 @@ def _fmt(x, spec=".3g"):
     return "-" if x is None else format(x, spec)
 
 
-def markdown(results: dict, pool: tuple = ()) -> str:
+def markdown(results: dict, loo: dict) -> str:
+    """The table of `results`, with `loo` = leave_one_out(...)["objects"]."""
     lines = [
         "| object | converged | log10 k shift 5-95% | com in band, future (height / displacement) "
         "| com in the 90% ball, future (leave-one-out γ) | future CD: posterior median / point estimate / still "
         "| minutes |",
         "|---|---|---|---|---|---|---|",
     ]
-    loo = leave_one_out(results, pool=pool)["objects"]
     for obj, r in results.items():
         shift = "-"
         if "log10_k_shift" in r["median"]:
@@ -186,6 +186,13 @@ def summary(results: dict, pool: tuple = ()) -> dict:
     }
 
 
+def report(results: dict, pool: tuple = ()) -> None:
+    """Print the table and the summary (one leave-one-out calibration for both)."""
+    s = summary(results, pool)
+    print(markdown(results, s["leave_one_out"]["objects"]))
+    print(json.dumps(s))
+
+
 def _commit() -> str:
     proc = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
     return proc.stdout.strip() or "unknown"
@@ -218,8 +225,7 @@ def main(argv=None) -> int:
         raise SystemExit(f"error: --pool: no results file {', '.join(missing_pool)}")
     pool = tuple(read_results(Path(f)) for f in args.pool)
     if args.summary:
-        print(markdown(results, pool))
-        print(json.dumps(summary(results, pool)))
+        report(results, pool)
         return 0
     objects = [o for o in args.objects.split(",") if o]
     runs = {o: Path(args.runs.format(object=o, preset=args.preset)) for o in objects}
@@ -253,9 +259,7 @@ def main(argv=None) -> int:
     lock = threading.Lock()
     with ThreadPoolExecutor(max(1, args.jobs)) as executor:
         list(executor.map(one, todo))
-    results = read_results(results_path)
-    print(markdown(results, pool))
-    print(json.dumps(summary(results, pool)))
+    report(read_results(results_path), pool)
     return 0
 
 

@@ -36,3 +36,19 @@ def test_a_pooled_draw_joins_the_calibration_and_leaves_with_its_object():
     assert only_a["objects"]["a"]["growth"] == 0.0  # a's own drifting run never calibrates a
     assert only_a["objects"]["b"]["growth"] > 0
     assert set(only_a["objects"]) == {"a", "b", "c"}  # pooled runs are not scored
+
+
+def test_balls_with_and_without_the_offset_are_never_calibrated_together():
+    """posterior.discrepancy_offset moves a ball's draws: a γ over runs of both kinds would mix
+    two discrepancy models, so the calibration refuses them and names the way out; a case that
+    has its offset already is scored as it is."""
+    import pytest
+
+    from evaluation.studies.posterior_objects import offset_case
+
+    plain = {o: {"ball": _case(0.0, k)} for k, o in enumerate("ab")}
+    moved = {"c": {"ball": {**_case(0.0, 5), "offset": [0.01, 0.0, 0.0]}}}
+    with pytest.raises(ValueError, match="--offsets"):
+        leave_one_out(plain, pool=(moved,))
+    assert leave_one_out(moved | {"d": {"ball": {**_case(0.0, 6), "offset": [0.0, 0.0, 0.0]}}})["calibration_runs"] == 2
+    assert offset_case(moved["c"], cfg=None) is moved["c"]["ball"]  # no run folder needed

@@ -345,3 +345,59 @@ def test_edge_probes_carry_the_surrogate_along_a_ridge_its_first_design_did_not_
     assert plain.validated and np.ptp(span0) < 0.3, span0
     assert probed.rounds[0]["open_edges"] > 0 and probed.rounds[-1]["open_edges"] == 0 and probed.validated
     assert np.ptp(span9) > 0.4 and span9[0] < 0.33 and span9[1] > 0.67, span9
+
+
+def _splat(cam, points, size):
+    """An alpha image [size, size] of `points` seen by `cam` (one pixel per point)."""
+    img = np.zeros((size, size))
+    uv, _ = cam.project(points)
+    ij = np.clip(np.floor(uv * size / cam.width).astype(int), 0, size - 1)
+    img[ij[:, 1], ij[:, 0]] = 1.0
+    return img
+
+
+def test_the_silhouette_offsets_triangulate_where_the_object_stands_from_the_images():
+    """Three views of a blob; the observed blob drifts away from the predicted one by a known 3D
+    vector that grows over the frames: the offsets recover it (relative to frame 0) from the
+    silhouettes alone, at the predicted images' own (lower) resolution too, and the end offset
+    and the scatter about it come out of `offset_discrepancy`."""
+    from sgdr.cameras import Camera
+    from sgdr.posterior.forecast import offset_discrepancy, silhouette_offsets
+
+    cams = [Camera.look_at(eye, [0, 0, 0], [0, 0, 1], 40.0, 256, 256) for eye in ([3, 0, 1], [0, 3, 1], [-2, -2, 2])]
+    rng = np.random.default_rng(1)
+    blob = rng.normal(0, 0.08, (20000, 3))
+    drift = np.array([0.02, -0.01, 0.015])  # per frame
+    n = 6
+
+    class Seq:
+        cameras = cams
+
+        def image(self, v, f):
+            img = np.zeros((256, 256, 4))
+            img[..., 3] = _splat(cams[v], blob + f * drift, 256)
+            return img
+
+    predicted = np.stack([[_splat(c, blob, 128) for c in cams] for _ in range(n)])  # [F, V, 128, 128]
+    coms = np.zeros((n, 3))
+    d = silhouette_offsets(Seq(), predicted, coms)
+    assert d.shape == (n, 3) and np.allclose(d[0], 0.0)
+    assert np.allclose(d, np.arange(n)[:, None] * drift, atol=0.006)
+    end, sigma = offset_discrepancy(d)
+    assert np.allclose(end, (n - 1) * drift, atol=0.006)
+    assert 0.0 < sigma < 0.02  # the last third's scatter about the end: the drift of one frame
+
+    # a view whose observed silhouette leaves the image does not count: the other two still give it
+    class Cut(Seq):
+        def image(self, v, f):
+            img = super().image(v, f)
+            if v == 2:
+                img[:, :60, 3] = 1.0  # a slab over the border: that view's centroid is not the object's
+            return img
+
+    assert np.allclose(silhouette_offsets(Cut(), predicted, coms), d, atol=0.006)
+    # one view is not enough for a 3D offset: NaN, and no offset from nothing
+    d1 = silhouette_offsets(Seq(), predicted[:, :1], coms)
+    assert np.isnan(d1).all()
+    end1, sigma1 = offset_discrepancy(d1)
+    assert np.all(end1 == 0.0) and sigma1 == 0.0

@@ -25,7 +25,9 @@ sgdr/posterior/forecast.py) leave-one-object-out: γ from every other object's f
 held-out object's share of future frames whose true centre of mass lies in the 90% ball with it;
 and γ from all of them, the default for data the calibration has not seen. `--pool FILE` adds
 another draw of runs (e.g. the objects reconstructed at another seed) to the calibration; an
-object is then left out with all its runs.
+object is then left out with all its runs. `--offsets` scores every ball as
+`posterior.discrepancy_offset=true` makes it (records written without it get their offsets
+rendered from their run folders, about 10 s each); the two kinds are never calibrated together.
 """
 
 from __future__ import annotations
@@ -100,7 +102,39 @@ def _ball_case(ball: dict | None) -> dict | None:
     """What the leave-one-object-out calibration needs of the predictive ball (forecast.coverage)."""
     if not ball or not ball.get("truth"):
         return None
-    return {k: ball[k] for k in ("sigma_fit", "fps", "size", "draws", "centre", "truth", "growth", "level")}
+    case = {k: ball[k] for k in ("sigma_fit", "fps", "size", "draws", "centre", "truth", "growth", "level")}
+    if ball.get("offset") is not None:  # posterior.discrepancy_offset: the draws already moved by it
+        case["offset"] = ball["offset"]
+    return case
+
+
+def _run_dir(record: dict) -> Path:
+    """The record's run folder (relative paths are the repository's)."""
+    run = Path(record["run"])
+    return run if run.is_absolute() else ROOT / run
+
+
+def offset_case(record: dict, cfg) -> dict | None:
+    """The record's ball case as posterior.discrepancy_offset would have made it: the offsets of
+    its run's point prediction rendered again (`sgdr.posterior.run.point_offsets`, the run folder
+    and its sequence must be on disk), the draws moved by them, σ_fit their scatter. A case that
+    has them already is returned as it is."""
+    import numpy as np
+
+    from sgdr.posterior.forecast import with_offsets
+    from sgdr.posterior.run import point_offsets
+    from sgdr.run_folder import run_asset_and_sequence
+
+    case = record.get("ball")
+    if not case or case.get("offset") is not None:
+        return case
+    _, asset, _, seq = run_asset_and_sequence(_run_dir(record), "", cfg.scene_file, "posterior")
+    offsets = point_offsets(cfg, asset, seq)
+    draws = np.asarray(case["draws"], float)
+    moved, sigma_fit, end = with_offsets(draws, offsets)
+    centre = np.asarray(case["centre"], float) + (moved - draws)[0]
+    return {**case, "draws": moved.tolist(), "centre": centre.tolist(), "sigma_fit": sigma_fit.tolist(),
+            "offset": end.tolist()}  # fmt: skip
 
 
 def leave_one_out(results: dict, level: float = 0.9, pool: tuple = ()) -> dict:
@@ -113,6 +147,12 @@ def leave_one_out(results: dict, level: float = 0.9, pool: tuple = ()) -> dict:
 
     cases = [(o, r["ball"]) for o, r in results.items() if r.get("ball")]
     every = cases + [(o, r["ball"]) for draw in pool for o, r in draw.items() if r.get("ball")]
+    kinds = {c.get("offset") is not None for _, c in every}
+    if len(kinds) > 1:
+        raise ValueError(
+            "the runs' balls mix posterior.discrepancy_offset=true and false; calibrate one kind "
+            "(--offsets computes the offsets of the others from their run folders)"
+        )
     out = {
         "objects": {},
         "calibration_runs": len(every),
@@ -198,6 +238,24 @@ def _commit() -> str:
     return proc.stdout.strip() or "unknown"
 
 
+def _offset_cases(args, results: dict, pool: tuple) -> tuple[dict, tuple]:
+    """`results` and `pool` with every ball case as `offset_case` makes it."""
+    from omegaconf import OmegaConf
+
+    import sgdr.backend
+    from sgdr.config import compose
+
+    cfg = OmegaConf.to_object(compose([f"preset={args.preset}", *args.set]))
+    sgdr.backend.init(cfg.backend, args.threads or None)
+    records = [r for draw in (results, *pool) for r in draw.values() if r.get("ball")]
+    missing = [r["run"] for r in records if not r["ball"].get("offset") and not (_run_dir(r) / "asset").is_dir()]
+    if missing:  # before any rendering
+        raise SystemExit("error: --offsets needs the run folders: no asset/ in " + ", ".join(missing))
+    done = [{o: {**r, "ball": offset_case(r, cfg)} if r.get("ball") else r for o, r in draw.items()}
+            for draw in (results, *pool)]  # fmt: skip
+    return done[0], tuple(done[1:])
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(
         description=__doc__.split("\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
@@ -217,6 +275,11 @@ def main(argv=None) -> int:
         default=[],
         help="another draw's results file whose runs join the discrepancy's calibration (leave one object out)",
     )
+    p.add_argument(
+        "--offsets",
+        action="store_true",
+        help="score the balls as posterior.discrepancy_offset=true would (the offsets rendered from each run folder)",
+    )
     args = p.parse_args(argv)
     results_path = Path(args.results or ROOT / "results" / f"posterior_objects_{args.preset}.jsonl")
     results = read_results(results_path)
@@ -224,6 +287,8 @@ def main(argv=None) -> int:
     if missing_pool:
         raise SystemExit(f"error: --pool: no results file {', '.join(missing_pool)}")
     pool = tuple(read_results(Path(f)) for f in args.pool)
+    if args.offsets:
+        results, pool = _offset_cases(args, results, pool)
     if args.summary:
         report(results, pool)
         return 0

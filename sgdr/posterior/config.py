@@ -73,6 +73,10 @@ class PosteriorConfig:
     # the forecast's model discrepancy (sgdr.posterior.forecast): the misfit measured on the fit frames,
     # growing by discrepancy_growth object sizes per second after them; band_level: the predictive ball's level
     discrepancy_growth: float = 0.0
+    # discrepancy_offset: the discrepancy's mean is the offset between the observed and the rendered
+    # point prediction's silhouettes at the last fit frame (triangulated over the views), held over the
+    # future, its noise their scatter about it; false: no mean, the noise the projected centres' misfit
+    discrepancy_offset: bool = False
     band_level: float = 0.9
 
 

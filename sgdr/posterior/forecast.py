@@ -16,6 +16,12 @@ so σ_fit = RMS over the views / sqrt(2). σ_end is its RMS over the last third 
 γ (sizes per second, `posterior.discrepancy_growth`) is the one number calibrated on null MPM
 sequences (the seven objects, leave-one-object-out in docs/posterior.md; `calibrate_growth`).
 
+With `posterior.discrepancy_offset` the discrepancy also has a mean, measured like for like: per
+view the observed silhouette's centroid against the centroid of the point prediction rendered at
+that view, mapped to 3D through the views' projections (`silhouette_offsets`, relative to frame 0).
+The last fit frame's offset is held over the future (the ball moves by it); σ_end is the offsets'
+scatter about it over the last third of the fit frames (`offset_discrepancy`, `with_offsets`).
+
 The 90% predictive region of the centre of mass at frame t is a ball around the draws' median
 displacement whose radius is the 90% quantile of the draws' displacements plus the discrepancy
 noise (`ball_radius`); the truth lies inside when its own displacement from frame 0 is within it
@@ -54,6 +60,81 @@ def fit_misfit(seq, centres: np.ndarray, n_fit: int, views=None) -> np.ndarray:
         return np.zeros(int(n_fit))
     e = np.asarray(err)  # [V, n_fit, 2]
     return np.sqrt(np.mean(np.sum(e**2, axis=-1), axis=0) / 2.0)
+
+
+def _centroid(alpha: np.ndarray, width: int, height: int) -> np.ndarray | None:
+    """The silhouette's (alpha > 0.5) area centroid in the pixel coordinates of a width x height
+    camera (an image of another size is scaled to it), or None when it is empty or touches the
+    image's border (cut off: its centroid is not the object's)."""
+    mask = np.asarray(alpha) > 0.5
+    if not mask.any() or mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any():
+        return None
+    rr, cc = np.nonzero(mask)
+    return np.array([(cc.mean() + 0.5) * width / mask.shape[1], (rr.mean() + 0.5) * height / mask.shape[0]])
+
+
+def _projection_jacobian(cam, x: np.ndarray) -> np.ndarray:
+    """[2, 3] d(pixel)/d(world point) of `cam` at x [3]."""
+    pc = cam.to_camera(np.asarray(x, float)[None])[0]
+    z = pc[2]
+    d = np.array([[1.0 / z, 0.0, -pc[0] / z**2], [0.0, 1.0 / z, -pc[1] / z**2]])
+    return np.asarray(cam.K, float)[:2, :2] @ d @ np.asarray(cam.R, float)
+
+
+def silhouette_offsets(seq, rendered_alpha: np.ndarray, coms: np.ndarray, min_views: int = 2) -> np.ndarray:
+    """[F, 3] where the observed object stands relative to the asset's prediction, frames 0..F-1,
+    in scene units, from the images alone: per view, the observed silhouette's centroid minus the
+    rendered prediction's (rendered_alpha [F, V, h, w], the prediction's opacity in view v of
+    `seq.cameras`), mapped to 3D through each view's projection at the prediction's centre of mass
+    coms [F, 3] (least squares over the views that see both silhouettes). Like for like (a
+    silhouette against a silhouette), so a prediction that matches the images has none; relative
+    to frame 0 (the rest state both start from). A view whose silhouette (either) is empty or cut
+    off by the image's border does not count; a frame fewer than `min_views` views see is NaN."""
+    alpha = np.asarray(rendered_alpha)
+    n_frames, n_views = alpha.shape[:2]
+    out = np.full((n_frames, 3), np.nan)
+    for f in range(n_frames):
+        rows, rhs = [], []
+        for v in range(n_views):
+            cam = seq.cameras[v]
+            seen = _centroid(seq.image(v, f)[..., 3], cam.width, cam.height)
+            pred = _centroid(alpha[f, v], cam.width, cam.height)
+            if seen is None or pred is None:
+                continue
+            rows.append(_projection_jacobian(cam, coms[f]))
+            rhs.append(seen - pred)
+        if len(rows) >= int(min_views):
+            out[f] = np.linalg.lstsq(np.concatenate(rows), np.concatenate(rhs), rcond=None)[0]
+    if np.isfinite(out[0]).all():
+        out -= out[0]
+    return out
+
+
+def offset_discrepancy(offsets: np.ndarray) -> tuple[np.ndarray, float]:
+    """(the discrepancy's mean over the future [3]: the offset at the last fit frame the images
+    measured, its per-axis standard deviation σ_end: the offsets' scatter about it over the last
+    third of the fit frames) from silhouette_offsets [n_fit, 3]; zeros when no frame was measured."""
+    d = np.asarray(offsets, float)
+    ok = np.isfinite(d).all(axis=1)
+    if not ok.any():
+        return np.zeros(3), 0.0
+    d = d[ok]
+    end = d[-1]
+    tail = d[-max(1, d.shape[0] // 3) :]
+    return end, float(np.sqrt(np.mean(np.sum((tail - end) ** 2, axis=1)) / 3.0))
+
+
+def with_offsets(draws: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(draws [S, T, 3] moved by the discrepancy's mean: offsets [n_fit, 3] over the fit frames, the
+    last fit frame's after them; σ_fit [n_fit]: the offsets' scatter, every fit frame; the mean
+    offset after the fit frames [3]) (offset_discrepancy)."""
+    draws = np.asarray(draws, float)
+    offsets = np.asarray(offsets, float)
+    n_fit = offsets.shape[0]
+    end, sigma_end = offset_discrepancy(offsets)
+    shift = np.repeat(end[None], draws.shape[1], axis=0)
+    shift[:n_fit] = np.where(np.isfinite(offsets), offsets, end[None])[: draws.shape[1]]
+    return draws + shift[None], np.full(n_fit, sigma_end), end
 
 
 def sigma_over_time(sigma_fit: np.ndarray, n_frames: int, fps: float, size: float, growth: float) -> np.ndarray:

@@ -41,6 +41,7 @@ def predictive(
     growth: float = 0.0,
     size: float = 1.0,
     level: float = 0.9,
+    offsets: np.ndarray | None = None,
 ):
     """Bands and truth over every frame. rollout_all(samples) -> (positions [S, T, N_A, 3], stable);
     samples [N, D] the kept posterior samples; median [D]; map_theta [D] the identified values (the
@@ -58,7 +59,9 @@ def predictive(
     `com_ball`: the centre of mass's `level` predictive ball over every frame with the model
     discrepancy (`sgdr.posterior.forecast`: σ_fit from the images, growing by `growth` x `size`
     per second after the fit window), the draws' displacements beside it, and with ground truth the
-    share of fit and future frames whose true displacement lies inside it."""
+    share of fit and future frames whose true displacement lies inside it. offsets [n_fit, 3]
+    (`forecast.silhouette_offsets` of the point prediction, posterior.discrepancy_offset) give the
+    discrepancy a mean: the ball moves by them over the fit frames and by the last one after."""
 
     rng = np.random.default_rng(seed)
     pick = rng.choice(samples.shape[0], size=min(int(n_draws), samples.shape[0]), replace=False)
@@ -101,7 +104,8 @@ def predictive(
                 still_cd.append(chamfer_distance((map_centres if map_ok else centres[0])[seq.n_fit - 1], gt))
             if map_ok:
                 map_cd.append(chamfer_distance(map_centres[f], gt))
-    out["com_ball"] = _com_ball(centres, draws, map_centres if map_ok else centres[0], seq, growth, size, level, seed)
+    point = map_centres if map_ok else centres[0]
+    out["com_ball"] = _com_ball(centres, draws, point, seq, growth, size, level, seed, offsets)
     if truth_com3:
         truth_disp = np.asarray(truth_com3) - truth_com3[0]
         ball = out["com_ball"]
@@ -142,15 +146,23 @@ def predictive(
     return out, centres, ok
 
 
-def _com_ball(centres, draws, point, seq, growth, size, level, seed) -> dict:
+def _com_ball(centres, draws, point, seq, growth, size, level, seed, offsets=None) -> dict:
     """The centre of mass's predictive ball (`sgdr.posterior.forecast`) from centres [S, T, P, 3]
-    (draws marked by `draws`), σ_fit measured on the point prediction's centres `point` [T, P, 3]."""
+    (draws marked by `draws`). Without offsets σ_fit is measured on the point prediction's centres
+    `point` [T, P, 3]; with offsets [n_fit, 3] the discrepancy has their mean (the last one held
+    over the future) and their scatter about it as σ."""
     n_fit = min(int(seq.n_fit), centres.shape[1])
     com = centres.mean(axis=2)  # [S, T, 3]
     disp = com - com[:, :1]
     use = disp[draws] if draws.any() else disp[:1]
+    extra = {}
+    if offsets is None:
+        sigma_fit = forecast.fit_misfit(seq, point, n_fit)
+    else:
+        offsets = np.asarray(offsets, float)[:n_fit]
+        use, sigma_fit, end = forecast.with_offsets(use, offsets)
+        extra = {"offsets": offsets.tolist(), "offset": end.tolist()}
     centre = np.median(use, axis=0)  # [T, 3]
-    sigma_fit = forecast.fit_misfit(seq, point, n_fit)
     sigma = forecast.sigma_over_time(sigma_fit, centres.shape[1], seq.fps, size, growth)
     radius = forecast.ball_radius(use, centre, sigma, level, seed=seed)
     return {
@@ -163,6 +175,7 @@ def _com_ball(centres, draws, point, seq, growth, size, level, seed) -> dict:
         "radius": radius.tolist(),
         "centre": centre.tolist(),
         "draws": use.tolist(),
+        **extra,
     }
 
 
@@ -386,11 +399,20 @@ def section(record: dict, out_dir):
         )
     ball = pred.get("com_ball") or {}
     if ball:
-        cap += (
-            f" The {ball['level']:.0%} ball of the centre of mass adds the model discrepancy: the misfit measured on the "
-            f"fit frames' silhouettes (σ {ball['sigma_fit'][-1]:.3g} scene units per axis at the last fit frame), "
-            f"growing by {ball['growth']:g} object sizes per second after them."
-        )
+        if ball.get("offset") is not None:
+            cap += (
+                f" The {ball['level']:.0%} ball of the centre of mass adds the model discrepancy measured on the fit "
+                f"frames' silhouettes, observed against the rendered point prediction: its mean, the offset "
+                f"{np.linalg.norm(ball['offset']):.3g} scene units at the last fit frame, held over the future (the ball "
+                f"moves by it), and its scatter (σ {ball['sigma_fit'][-1]:.3g} per axis), growing by {ball['growth']:g} "
+                "object sizes per second after them."
+            )
+        else:
+            cap += (
+                f" The {ball['level']:.0%} ball of the centre of mass adds the model discrepancy: the misfit measured on "
+                f"the fit frames' silhouettes (σ {ball['sigma_fit'][-1]:.3g} scene units per axis at the last fit "
+                f"frame), growing by {ball['growth']:g} object sizes per second after them."
+            )
         if ball.get("truth_inside_future") is not None:
             cap += (
                 f" Truth inside the ball: {100 * ball['truth_inside_fit']:.0f}% of fit frames after frame 0, "

@@ -135,6 +135,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
         growth=pc.discrepancy_growth,
         size=float(np.ptp(asset.anchors, axis=0).max()),
         level=pc.band_level,
+        offsets=point_offsets(cfg, asset, seq) if pc.discrepancy_offset else None,
     )
     truth = twin_truth(seq, asset_dir, problem)
     notes = []
@@ -477,3 +478,19 @@ def log_to_mlflow(run_dir: Path, out: Path, record: dict) -> str | None:
     except Exception as err:  # noqa: BLE001 (any store problem: the files are the record)
         log.warning("posterior: could not log to MLflow run in %s: %s", state, err)
         return None
+
+
+def point_offsets(cfg, asset, seq) -> np.ndarray:
+    """[n_fit, 3] `forecast.silhouette_offsets` of the identified asset's own prediction (rendered
+    at the sequence's cameras over its fit frames) against the sequence's silhouettes."""
+    from sgdr.asset.predict import physical_params, predict
+    from sgdr.posterior.forecast import silhouette_offsets
+
+    n_fit = min(int(asset.n_fit), int(seq.n_fit))
+    model, binding = asset.build()
+    params = physical_params(model, asset.physics, asset.values)
+    ground = Ground(asset.ground_point, asset.ground_normal)
+    pred = predict(model, params, binding, asset.gaussians, ground, n_fit, asset.fps, int(asset.n_substeps),
+                   asset.physics, seq.cameras, cfg.render)  # fmt: skip
+    alpha = pred.images[..., 3].astype(np.float64) / 255.0  # [F, V, H, W]
+    return silhouette_offsets(seq, alpha, pred.centres.mean(axis=1))

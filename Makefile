@@ -67,11 +67,14 @@ oracle:
 # friction, restitution from the rendered images (emcee on a checked Gaussian-process surrogate
 # started from the run's global search); writes <run>/posterior/ and adds a section to the
 # run's report.html. Default: the demo's run. SEQUENCE= observes another sequence (e.g. a twin).
+# ENSEMBLE=a,b: combine RUN's finished posterior with those of other runs of its sequence (other
+# seeds) into one forecast instead (sgdr/posterior/ensemble.py; writes <RUN>/posterior_ensemble/).
 RUN ?= outputs/torus_$(RUN_TAG)_s0
 SEQUENCE ?=
+ENSEMBLE ?=
 posterior:
 	$(PYTHON) experiments/posterior.py preset=$(PRESET) method=$(METHOD) posterior.run=$(RUN) \
-		$(if $(SEQUENCE),posterior.sequence=$(SEQUENCE),)
+		$(if $(SEQUENCE),posterior.sequence=$(SEQUENCE),) $(if $(ENSEMBLE),'posterior.ensemble=[$(ENSEMBLE)]',)
 
 # Which model extension a finished run's data ask for (docs/discrepancy.md): air drag, gravity's
 # magnitude, the ground's height, fitted on half the views and judged on the other half.

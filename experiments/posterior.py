@@ -2,6 +2,8 @@
 
     python experiments/posterior.py preset=small posterior.run=outputs/torus_small_s0
     python experiments/posterior.py preset=tiny posterior.run=outputs/torus_tiny_s0 posterior.sequence=/tmp/twin
+    python experiments/posterior.py preset=small posterior.run=outputs/torus_small_s0 \
+        'posterior.ensemble=[outputs/torus_small_s1,outputs/torus_small_s2]'   # finished posteriors combined
 
 emcee ensembles over a global log10 k shift, κ, μ, e (posterior.parameters) under the uniform
 priors of conf/posterior/default.yaml, with the silhouette likelihood of the fit frames
@@ -48,6 +50,13 @@ def posterior(cfg: DictConfig) -> None:
     logging.getLogger("emcee").setLevel(logging.ERROR)  # its short-chain warning is our verdict's job
     c = OmegaConf.to_object(cfg)
     validate(c)
+    if c.posterior.ensemble:  # combine finished posteriors of several runs (sgdr/posterior/ensemble.py)
+        from sgdr.posterior.ensemble import run_ensemble
+
+        rec = run_ensemble(c)
+        print(rec["headline"])
+        print(json.dumps({k: rec[k] for k in ("out_dir", "runs", "truth_inside_fit", "truth_inside_future")}))
+        return
     record = run_posterior(c, progress=True)
     d = record["diagnostics"]
     print(record["headline"])

@@ -52,3 +52,24 @@ def test_balls_with_and_without_the_offset_are_never_calibrated_together():
         leave_one_out(plain, pool=(moved,))
     assert leave_one_out(moved | {"d": {"ball": {**_case(0.0, 6), "offset": [0.0, 0.0, 0.0]}}})["calibration_runs"] == 2
     assert offset_case(moved["c"], cfg=None) is moved["c"]["ball"]  # no run folder needed
+
+
+def test_the_objects_runs_over_the_draws_are_scored_as_ensembles():
+    """Two draws: object a's runs lie on either side of its truth (each misses, together they
+    cover), b's both follow it; every combination of one run is each run alone."""
+    from evaluation.studies.posterior_objects import ensemble_summary, ensembles
+
+    def case(offset, seed):
+        c = _case(0.0, seed)
+        c["draws"] = c["draws"] + np.r_[np.zeros(10), np.full(20, offset)][None, :, None] * [1, 0, 0]
+        return c
+
+    d0 = {"a": {"ball": case(+0.05, 1)}, "b": {"ball": _case(0.0, 2)}}
+    d1 = {"a": {"ball": case(-0.05, 3)}, "b": {"ball": _case(0.0, 4)}}
+    assert [len(g) for g in ensembles(d0, (d1,)).values()] == [1, 1]
+    assert [len(g) for g in ensembles(d0, (d1,), size=1).values()] == [2, 2]
+    together = ensemble_summary(d0, (d1,))
+    assert together["objects"]["a"]["inside_future_mean"] == 1.0 and together["growth_all"] == 0.0
+    alone = ensemble_summary(d0, (d1,), size=1)
+    assert alone["objects"]["a"]["inside_future_min"] == 0.0
+    assert alone["growth_all"] > 0.0

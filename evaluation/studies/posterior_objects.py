@@ -28,6 +28,9 @@ another draw of runs (e.g. the objects reconstructed at another seed) to the cal
 object is then left out with all its runs. `--offsets` scores every ball as
 `posterior.discrepancy_offset=true` makes it (records written without it get their offsets
 rendered from their run folders, about 10 s each); the two kinds are never calibrated together.
+`--ensemble` scores each object's runs over all the draws as one ensemble (`posterior.ensemble`:
+the mixture of their predictives, at `posterior.ensemble_growth`), `--ensemble-size k` every
+combination of k of them, with γ calibrated leave-one-object-out on the ensembles too; nothing runs.
 """
 
 from __future__ import annotations
@@ -170,6 +173,68 @@ def leave_one_out(results: dict, level: float = 0.9, pool: tuple = ()) -> dict:
     return out
 
 
+def ensembles(results: dict, pool: tuple = (), size: int = 0) -> dict:
+    """object -> [ensemble cases ({members: [ball cases]}, `forecast.ensemble_ball`)]: the object's
+    runs over every draw (`results` and `pool`) as one ensemble, or (size > 0) every combination of
+    `size` of them."""
+    from itertools import combinations
+
+    runs: dict = {}
+    for draw in (results, *pool):
+        for obj, r in draw.items():
+            if r.get("ball"):
+                runs.setdefault(obj, []).append(r["ball"])
+    out = {}
+    for obj, balls in runs.items():
+        groups = [balls] if size <= 0 else [list(g) for g in combinations(balls, size)]
+        out[obj] = [{"members": g} for g in groups if g]
+    return out
+
+
+def ensemble_summary(results: dict, pool: tuple = (), growth: float = 0.0, size: int = 0, level: float = 0.9) -> dict:
+    """The ensembles of runs (`ensembles`): each object's share of future frames inside the ball
+    at `growth` (mean and min over its ensembles), and γ calibrated leave-one-object-out on the
+    other objects' ensembles with the held-out object's share at it; γ on all of them."""
+    from sgdr.posterior.forecast import calibrate_growth, coverage
+
+    ens = ensembles(results, pool, size)
+    every = [e for groups in ens.values() for e in groups]
+    out = {"size": size, "growth": growth, "objects": {},
+           "growth_all": calibrate_growth(every, level) if every else None}  # fmt: skip
+    for obj, groups in ens.items():
+        at = [coverage(e, growth, level) for e in groups]
+        others = [e for o, g in ens.items() if o != obj for e in g]
+        loo = calibrate_growth(others, level) if others else None
+        held = [coverage(e, loo, level) for e in groups] if others else []
+        out["objects"][obj] = {
+            "ensembles": len(groups),
+            "runs": len(groups[0]["members"]),
+            "inside_future_mean": sum(at) / len(at),
+            "inside_future_min": min(at),
+            "loo_growth": loo,
+            "loo_inside_future_mean": sum(held) / len(held) if held else None,
+        }
+    for key in ("inside_future_mean", "loo_inside_future_mean"):
+        vals = [v[key] for v in out["objects"].values() if v[key] is not None]
+        out[f"{key}_over_objects"] = sum(vals) / len(vals) if vals else None
+        out[f"{key}_lowest_object"] = min(vals) if vals else None
+    return out
+
+
+def ensemble_markdown(s: dict) -> str:
+    lines = [
+        f"| object | runs per ensemble | ensembles | inside the 90% ball, future, at γ {s['growth']:g}: mean [min] "
+        "| γ left one object out | inside at it |",
+        "|---|---|---|---|---|---|",
+    ]
+    for obj, v in s["objects"].items():
+        lines.append(
+            f"| {obj} | {v['runs']} | {v['ensembles']} | {v['inside_future_mean']:.0%} [{v['inside_future_min']:.0%}] "
+            f"| {_fmt(v['loo_growth'])} | {_fmt(v['loo_inside_future_mean'], '.0%')} |"
+        )
+    return "\n".join(lines)
+
+
 def _fmt(x, spec=".3g"):
     return "-" if x is None else format(x, spec)
 
@@ -280,6 +345,12 @@ def main(argv=None) -> int:
         action="store_true",
         help="score the balls as posterior.discrepancy_offset=true would (the offsets rendered from each run folder)",
     )
+    p.add_argument(
+        "--ensemble",
+        action="store_true",
+        help="score each object's runs over the draws (the results file and --pool) as one ensemble (posterior.ensemble)",
+    )
+    p.add_argument("--ensemble-size", type=int, default=0, help="with --ensemble: every combination of this many runs")
     args = p.parse_args(argv)
     results_path = Path(args.results or ROOT / "results" / f"posterior_objects_{args.preset}.jsonl")
     results = read_results(results_path)
@@ -289,6 +360,16 @@ def main(argv=None) -> int:
     pool = tuple(read_results(Path(f)) for f in args.pool)
     if args.offsets:
         results, pool = _offset_cases(args, results, pool)
+    if args.ensemble:
+        from omegaconf import OmegaConf
+
+        from sgdr.config import compose
+
+        growth = OmegaConf.to_object(compose([f"preset={args.preset}", *args.set])).posterior.ensemble_growth
+        s = ensemble_summary(results, pool, growth, args.ensemble_size)
+        print(ensemble_markdown(s))
+        print(json.dumps(s))
+        return 0
     if args.summary:
         report(results, pool)
         return 0

@@ -78,6 +78,11 @@ class PosteriorConfig:
     # future, its noise their scatter about it; false: no mean, the noise the projected centres' misfit
     discrepancy_offset: bool = False
     band_level: float = 0.9
+    # ensemble: finished posteriors of other runs of the same sequence (reconstructions at other seeds), combined
+    # with posterior.run's into one predictive ball (sgdr.posterior.ensemble) instead of sampling;
+    # ensemble_growth: its discrepancy growth (object sizes per second)
+    ensemble: list = field(default_factory=list)
+    ensemble_growth: float = 0.0
 
 
 PRIOR_CHECKS = {name: vector(2) for name in PARAMETERS}
@@ -132,6 +137,8 @@ CHECKS: dict[str, Check] = {
     "n_predictive": at_least(1),
     "discrepancy_growth": at_least(0.0, "object sizes per second; 0: the fit frames' misfit, not growing"),
     "band_level": between(0.0, 1.0, lo_open=True),
+    "ensemble": list_of(any_text("a finished run folder with posterior/posterior.json")),
+    "ensemble_growth": at_least(0.0, "object sizes per second"),
 }
 
 

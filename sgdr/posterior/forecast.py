@@ -153,13 +153,55 @@ def ball_radius(draws: np.ndarray, centre: np.ndarray, sigma: np.ndarray, level:
                 seed: int = 0) -> np.ndarray:  # fmt: skip
     """[T] radius around centre [T, 3] holding `level` of the predictive: draws [S, T, 3] (the
     posterior draws' centre-of-mass displacements) plus N(0, σ(t)² I) (seeded)."""
-    draws = np.asarray(draws, float)
+    return mixture_radius([(draws, sigma)], centre, level, n_noise, seed)
+
+
+def mixture_radius(members: list, centre: np.ndarray, level: float = 0.9, n_noise: int = 64,
+                   seed: int = 0) -> np.ndarray:  # fmt: skip
+    """[T] radius around centre [T, 3] holding `level` of an equal-weight mixture of predictives,
+    members [(draws [S_i, T, 3], σ_i [T])], each its draws plus N(0, σ_i(t)² I) (seeded); a member
+    with fewer draws repeats its noise more often, so every member weighs the same."""
     rng = np.random.default_rng(seed)
-    noise = (
-        rng.standard_normal((draws.shape[0], int(n_noise), draws.shape[1], 3)) * np.asarray(sigma)[None, None, :, None]
-    )
-    d = np.linalg.norm(draws[:, None] + noise - np.asarray(centre)[None, None], axis=-1)  # [S, n, T]
-    return np.quantile(d.reshape(-1, d.shape[-1]), float(level), axis=0)
+    n_max = max(np.asarray(d).shape[0] for d, _ in members)
+    dist = []
+    for draws, sigma in members:
+        draws = np.asarray(draws, float)
+        n = int(np.ceil(int(n_noise) * n_max / draws.shape[0]))
+        noise = rng.standard_normal((draws.shape[0], n, draws.shape[1], 3)) * np.asarray(sigma)[None, None, :, None]
+        d = np.linalg.norm(draws[:, None] + noise - np.asarray(centre)[None, None], axis=-1)  # [S, n, T]
+        dist.append(d.reshape(-1, d.shape[-1])[: int(n_noise) * n_max])
+    return np.quantile(np.concatenate(dist), float(level), axis=0)
+
+
+def ensemble_ball(cases: list, growth: float = 0.0, level: float = 0.9, seed: int = 0) -> dict:
+    """The `level` ball of several runs of one sequence (reconstructions at other seeds: the
+    identification's run-to-run spread), each case as `coverage`'s: the equal-weight mixture of
+    their predictives (their draws, their own σ(t) with `growth`), centred on the median of all
+    draws. Returns {centre [T, 3], radius [T], member_centres [R, T, 3]} and, when every case has
+    the truth, truth_inside [T] (bool) and the shares over the fit and the future frames."""
+    if not cases:
+        raise ValueError("an ensemble needs at least one run")
+    n_fit = len(cases[0]["sigma_fit"])
+    if any(len(c["sigma_fit"]) != n_fit for c in cases):
+        raise ValueError("the runs of an ensemble must share the sequence's fit frames")
+    t = min(np.asarray(c["draws"]).shape[1] for c in cases)
+    members = [(np.asarray(c["draws"], float)[:, :t], sigma_over_time(c["sigma_fit"], t, c["fps"], c["size"], growth))
+               for c in cases]  # fmt: skip
+    centre = np.median(np.concatenate([d for d, _ in members]), axis=0)
+    out = {
+        "centre": centre,
+        "radius": mixture_radius(members, centre, level, seed=seed),
+        "member_centres": np.stack([np.median(d, axis=0) for d, _ in members]),
+    }
+    truths = [c.get("truth") for c in cases]
+    if all(x is not None and len(x) for x in truths):
+        tt = min(len(x) for x in truths)
+        truth = np.asarray(truths[0], float)[:tt]
+        hit = inside(truth, centre[:tt], out["radius"][:tt])
+        out["truth_inside"] = hit
+        out["truth_inside_fit"] = float(hit[1:n_fit].mean()) if n_fit > 1 else None
+        out["truth_inside_future"] = float(hit[n_fit:].mean()) if tt > n_fit else None
+    return out
 
 
 def inside(truth: np.ndarray, centre: np.ndarray, radius: np.ndarray) -> np.ndarray:
@@ -169,7 +211,10 @@ def inside(truth: np.ndarray, centre: np.ndarray, radius: np.ndarray) -> np.ndar
 
 def coverage(case: dict, growth: float, level: float = 0.9, seed: int = 0) -> float:
     """Share of the future frames whose true centre of mass lies in the `level` ball of one case
-    ({draws [S, T, 3], centre [T, 3], truth [T, 3], sigma_fit [n_fit], fps, size})."""
+    ({draws [S, T, 3], centre [T, 3], truth [T, 3], sigma_fit [n_fit], fps, size}), or of an
+    ensemble of runs ({members: [such cases]}, `ensemble_ball`)."""
+    if "members" in case:
+        return float(ensemble_ball(case["members"], growth, level, seed)["truth_inside_future"])
     n_fit = len(case["sigma_fit"])
     truth = np.asarray(case["truth"], float)
     t = truth.shape[0]
@@ -182,8 +227,12 @@ def calibrate_growth(cases: list, level: float = 0.9, hi: float = 50.0, seed: in
     """The smallest γ >= 0 whose pooled future coverage over `cases` (each as `coverage`'s,
     weighted by its future frames) reaches `level` (bisection; `hi` when none below it does)."""
 
+    def future_frames(c) -> int:
+        c = c["members"][0] if "members" in c else c
+        return len(c["truth"]) - len(c["sigma_fit"])
+
     def pooled(growth: float) -> float:
-        n = [len(c["truth"]) - len(c["sigma_fit"]) for c in cases]
+        n = [future_frames(c) for c in cases]
         return float(np.average([coverage(c, growth, level, seed) for c in cases], weights=n))
 
     if pooled(0.0) >= level:

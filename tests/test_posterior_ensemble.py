@@ -57,7 +57,8 @@ def _run(root, name, digest, case=None):
     (run / "RUN.json").write_text(json.dumps({"sequence": "data/x", "digest": digest}))
     if case is not None:
         ball = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in case.items()}
-        (run / "posterior" / "posterior.json").write_text(json.dumps({"predictive": {"com_ball": ball}}))
+        record = {"converged": digest == "d1", "predictive": {"com_ball": ball}}
+        (run / "posterior" / "posterior.json").write_text(json.dumps(record))
     return run
 
 
@@ -72,6 +73,7 @@ def test_the_ensemble_combines_finished_posteriors_of_one_sequence(tmp_path):
     cfg = OmegaConf.to_object(compose(["preset=tiny", f"posterior.run={a}", f"posterior.ensemble=[{b}]"]))
     rec = run_ensemble(cfg)
     assert rec["runs"] == [str(a), str(b)] and rec["truth_inside_future"] == 1.0
+    assert rec["converged"] == [True, True] and "2 of their posteriors converged" in rec["headline"]
     out = a / "posterior_ensemble"
     written = json.loads((out / "ensemble.json").read_text())
     assert written["truth_inside_future"] == 1.0 and len(written["radius"]) == 20

@@ -31,18 +31,20 @@ from sgdr.posterior import forecast
 log = logging.getLogger(__name__)
 
 
-def member_case(run_dir: Path) -> dict:
-    """The predictive ball's case (`forecast.coverage`'s form) of one run's finished posterior."""
+def member_case(run_dir: Path) -> tuple[dict, bool]:
+    """(the predictive ball's case, `forecast.coverage`'s form; whether it converged) of one run's
+    finished posterior."""
     f = Path(run_dir) / "posterior" / "posterior.json"
     if not f.exists():
         raise FileNotFoundError(
             f"{f}: missing; posterior.ensemble combines finished posteriors: run "
             f"`python experiments/posterior.py posterior.run={run_dir}` first"
         )
-    ball = (json.loads(f.read_text()).get("predictive") or {}).get("com_ball")
+    record = json.loads(f.read_text())
+    ball = (record.get("predictive") or {}).get("com_ball")
     if not ball or not ball.get("draws"):
         raise ValueError(f"{f}: no predictive ball (predictive.com_ball); rerun the posterior with this version")
-    return ball
+    return ball, bool(record.get("converged"))
 
 
 def _digest(run_dir: Path) -> str:
@@ -64,13 +66,14 @@ def run_ensemble(cfg) -> dict:
             f"posterior.ensemble: {other} reconstructed another sequence than {first} (RUN.json digests "
             f"differ); an ensemble combines runs of one sequence"
         )
-    cases = [member_case(Path(r)) for r in runs]
-    ball = forecast.ensemble_ball(cases, float(pc.ensemble_growth), float(pc.band_level), int(cfg.seed))
+    cases, converged = zip(*(member_case(Path(r)) for r in runs))
+    ball = forecast.ensemble_ball(list(cases), float(pc.ensemble_growth), float(pc.band_level), int(cfg.seed))
     n_fit = len(cases[0]["sigma_fit"])
     size = float(np.mean([c["size"] for c in cases]))
     radius = np.asarray(ball["radius"])
     record = {
         "runs": runs,
+        "converged": list(converged),
         "growth": float(pc.ensemble_growth),
         "level": float(pc.band_level),
         "n_fit": n_fit,
@@ -85,7 +88,7 @@ def run_ensemble(cfg) -> dict:
     }
     future = radius[n_fit:] if radius.size > n_fit else radius[-1:]
     record["headline"] = (
-        f"Ensemble of {len(runs)} runs: the {pc.band_level:.0%} ball of the centre of mass reaches "
+        f"Ensemble of {len(runs)} runs ({sum(converged)} of their posteriors converged): the {pc.band_level:.0%} ball of the centre of mass reaches "
         f"{future[-1] / size:.2f} object sizes at the last frame"
         + (
             f"; the true centre of mass inside on {ball['truth_inside_future']:.0%} of the future frames."

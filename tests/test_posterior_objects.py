@@ -73,3 +73,7 @@ def test_the_objects_runs_over_the_draws_are_scored_as_ensembles():
     alone = ensemble_summary(d0, (d1,), size=1)
     assert alone["objects"]["a"]["inside_future_min"] == 0.0
     assert alone["growth_all"] > 0.0
+    import pytest
+
+    with pytest.raises(ValueError, match="--ensemble-size 3"):
+        ensemble_summary(d0, (d1,), size=3)  # two draws hold two runs of each object

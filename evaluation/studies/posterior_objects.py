@@ -187,7 +187,8 @@ def ensembles(results: dict, pool: tuple = (), size: int = 0) -> dict:
     out = {}
     for obj, balls in runs.items():
         groups = [balls] if size <= 0 else [list(g) for g in combinations(balls, size)]
-        out[obj] = [{"members": g} for g in groups if g]
+        if groups:  # an object with fewer runs than `size` has none
+            out[obj] = [{"members": g} for g in groups]
     return out
 
 
@@ -199,6 +200,8 @@ def ensemble_summary(results: dict, pool: tuple = (), growth: float = 0.0, size:
 
     ens = ensembles(results, pool, size)
     every = [e for groups in ens.values() for e in groups]
+    if not every:
+        raise ValueError(f"--ensemble-size {size}: no object has that many runs over the draws (results and --pool)")
     out = {"size": size, "growth": growth, "objects": {},
            "growth_all": calibrate_growth(every, level) if every else None}  # fmt: skip
     for obj, groups in ens.items():
@@ -366,7 +369,10 @@ def main(argv=None) -> int:
         from sgdr.config import compose
 
         growth = OmegaConf.to_object(compose([f"preset={args.preset}", *args.set])).posterior.ensemble_growth
-        s = ensemble_summary(results, pool, growth, args.ensemble_size)
+        try:
+            s = ensemble_summary(results, pool, growth, args.ensemble_size)
+        except ValueError as err:
+            raise SystemExit(f"error: {err}") from None
         print(ensemble_markdown(s))
         print(json.dumps(s))
         return 0

@@ -48,7 +48,8 @@ def rechain(run: Path, steps: int, preset: str, seed: int) -> dict:
     surrogate = GPSurrogate(problem.low, problem.high, pc.surrogate.clip, seed + len(sur["rounds"]) - 1)
     surrogate.fit(thetas, log_like)
     chains, _, acc = run_ensembles(surrogate, problem, pc.n_walkers, steps, pc.n_ensembles, pc.init_ball, seed=seed,
-                                   move=pc.moves, space=pc.space)  # fmt: skip
+                                   move=pc.moves, space=pc.space, independence=pc.surrogate.independence,
+                                   pilot_steps=pc.surrogate.pilot_steps)  # fmt: skip
     d = diagnose(chains, names, pc, acc)
     d0 = post["diagnostics"]
     return {

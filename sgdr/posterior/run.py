@@ -86,13 +86,15 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
         log_prob, _, like_record = _rendered(cfg, run_dir, asset, seq, problem, start, images)
     else:
         log_prob, _, like_record = _silhouette(cfg, asset, seq, problem, rollout_fit, asset_dir)
-    run_chains = lambda lp, steps, start=None: run_ensembles(lp, problem, pc.n_walkers, steps, pc.n_ensembles,  # noqa: E731
-                                                             pc.init_ball, seed=cfg.seed, progress=progress,
-                                                             move=pc.moves, space=pc.space, start=start)  # fmt: skip
+    run_chains = lambda lp, steps, start=None, **kw: run_ensembles(lp, problem, pc.n_walkers, steps, pc.n_ensembles,  # noqa: E731
+                                                                   pc.init_ball, seed=cfg.seed, progress=progress,
+                                                                   move=pc.moves, space=pc.space, start=start, **kw)  # fmt: skip
+    # the chains on the surrogate (cheap): a pilot, then the mixture's independence proposals beside pc.moves
+    on_surrogate = {"independence": pc.surrogate.independence, "pilot_steps": pc.surrogate.pilot_steps}
     surrogate = None
     if pc.sampler == "surrogate":
         chains, log_probs, acceptance, surrogate = sample_with_surrogate(
-            log_prob, problem, start, pc.surrogate, lambda lp, walkers: run_chains(lp, pc.surrogate.chain_steps, walkers), cfg.seed,
+            log_prob, problem, start, pc.surrogate, lambda lp, walkers: run_chains(lp, pc.surrogate.chain_steps, walkers, **on_surrogate), cfg.seed,
             progress,
         )  # fmt: skip
     else:
@@ -105,7 +107,7 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
         steps = min(math.ceil(1.2 * pc.tau_factor * diag["tau_max"]), 10 * int(pc.surrogate.chain_steps))
         log.info("posterior surrogate: chains of %d steps are %.0f τ; again with %d", diag["n_steps"],
                  diag["chain_over_tau"], steps)  # fmt: skip
-        chains, log_probs, acceptance = run_chains(surrogate.surrogate, steps, surrogate.start)
+        chains, log_probs, acceptance = run_chains(surrogate.surrogate, steps, surrogate.start, **on_surrogate)
         diag = diagnose(chains, problem.names, pc, acceptance)
     if surrogate is not None and not surrogate.validated:
         last = surrogate.rounds[-1]

@@ -22,6 +22,8 @@ smooth enough between its basins for a surrogate (four parameters, one number ea
               convergence criteria as the direct sampler) on the surrogate's mean, `chain_steps`
               long: cheap, so the chains are many τ long; their walkers start from the true
               evaluations so far (`design_start`), not around the MAP: where the likelihood is;
+              after a pilot, half their moves are independence proposals from a Gaussian
+              mixture fitted to it (`independence`), which cross between a posterior's modes;
   4. check    `n_validate` draws of those chains are evaluated with the true likelihood; the
               surrogate stands for it when at least `inside_min` of them lie in its 95% predictive
               interval (mean ± 1.96 sd, the roughness included: the emulator check of Bastos &
@@ -91,6 +93,10 @@ class SurrogateConfig:
     # another round follows
     edge_points: int = 0
     edge_within: float = 3.0
+    # the chains on the surrogate: this share of their moves are independence proposals from a Gaussian
+    # mixture fitted to a pilot of `pilot_steps` (sgdr.posterior.sample.MixtureMove; 0: `posterior.moves` alone)
+    independence: float = 0.5
+    pilot_steps: int = 2000
 
 
 @dataclass

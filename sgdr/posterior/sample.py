@@ -185,7 +185,9 @@ class MixtureMove:
         terms = []
         for w, mu, chol in zip(self.weights, self.means, self.chol, strict=True):
             r = np.linalg.solve(chol, (x - mu).T).T
-            terms.append(np.log(w) - 0.5 * np.sum(r**2, axis=1) - np.sum(np.log(np.diag(chol))) - 0.5 * d * np.log(2 * np.pi))
+            terms.append(
+                np.log(w) - 0.5 * np.sum(r**2, axis=1) - np.sum(np.log(np.diag(chol))) - 0.5 * d * np.log(2 * np.pi)
+            )
         return logsumexp(np.stack(terms), axis=0)
 
     def draw(self, n: int, random) -> np.ndarray:
@@ -261,13 +263,19 @@ def run_ensembles(
     starts = []
     for e in range(int(n_ensembles)):
         rng = np.random.default_rng(int(seed) * 1000 + e)
-        p0 = initial_walkers(problem, int(n_walkers), float(init_ball), rng) if start is None else start(int(n_walkers), rng)
+        p0 = (
+            initial_walkers(problem, int(n_walkers), float(init_ball), rng)
+            if start is None
+            else start(int(n_walkers), rng)
+        )
         starts.append(mapped.to_z(p0) if mapped else p0)
     step_moves = moves(move)
     if float(independence) > 0:
         pilots = []
         for e, p0 in enumerate(starts):
-            sampler = emcee.EnsembleSampler(int(n_walkers), len(problem.names), target, vectorize=True, moves=moves(move))
+            sampler = emcee.EnsembleSampler(
+                int(n_walkers), len(problem.names), target, vectorize=True, moves=moves(move)
+            )
             sampler.random_state = np.random.RandomState(int(seed) * 1000 + 500 + e).get_state()
             sampler.run_mcmc(p0, int(pilot_steps))
             pilots.append(sampler.get_chain())

@@ -154,6 +154,36 @@ def test_mixture_move_is_an_exact_independence_sampler():
     assert np.all(sampler.acceptance_fraction > 0.999)
 
 
+def test_the_defensive_component_lets_walkers_leave_a_mode_the_mixture_missed():
+    """A mixture fitted on one mode only (the pilot never saw the other, 5% of the mass): a walker
+    started in the missed mode never leaves it under the mixture's independence proposals (their
+    density there is ~0), and with the defensive wide component it leaves, and the chains hold the
+    missed mode at about its weight."""
+    import emcee
+
+    from sgdr.posterior.sample import MixtureMove, fit_mixture
+
+    def target(x):
+        a = -0.5 * np.sum((x - np.array([-3.0, 0.0])) ** 2, axis=1) / 0.25
+        b = -0.5 * np.sum((x - np.array([3.0, 0.0])) ** 2, axis=1) / 0.25
+        return np.logaddexp(np.log(0.95) + a, np.log(0.05) + b)
+
+    rng = np.random.default_rng(0)
+    mixture = fit_mixture(rng.normal([-3.0, 0.0], 0.5, (2000, 2)), seed=0)
+    p0 = np.vstack([rng.normal([-3.0, 0.0], 0.5, (7, 2)), [[3.0, 0.0]]])
+    for defensive, check in ((None, "stuck"), ((0.1, np.zeros(2), 16.0 * np.eye(2)), "mixes")):
+        move = MixtureMove(mixture, inflate=1.5, defensive=defensive)
+        sampler = emcee.EnsembleSampler(8, 2, target, vectorize=True, moves=move.move)
+        sampler.random_state = np.random.RandomState(3).get_state()
+        sampler.run_mcmc(p0, 6000)
+        high = sampler.get_chain()[..., 0] > 0  # [steps, walkers]
+        if check == "stuck":
+            assert high[:, -1].all() and not high[:, :-1].any()
+        else:
+            assert not high[-3000:, -1].all()
+            assert high[1000:].mean() == pytest.approx(0.05, abs=0.025)
+
+
 def test_logit_space_samples_the_box_prior_itself():
     """posterior.space=logit on a flat likelihood: the chains (returned in θ) are the uniform prior,
     which needs the Jacobian (without it the walkers drift to the edges)."""

@@ -47,6 +47,14 @@ from scipy.special import expit, logit
 
 from sgdr.observe.silhouette import discrepancy
 
+# The independence proposals' defensive component: this share of them come from one wide Gaussian
+# (the pooled pilot's mean, its covariance scaled by DEFENSIVE_SCALE^2), so that no region a walker
+# can reach has a vanishing proposal density. Without it a walker that wandered in the pilot into a
+# small mode the mixture left out stays there (the independence ratio q(x)/q(x') is tiny) and the
+# bulk ESS falls to the number of walkers (cream s0 at small: 45; docs/posterior.md).
+DEFENSIVE_SHARE = 0.1
+DEFENSIVE_SCALE = 2.0
+
 
 @dataclass
 class Problem:
@@ -164,17 +172,26 @@ class MixtureMove:
     covariances inflated by `inflate`^2 so that its tails reach beyond the pilot's): every walker
     proposes a draw of the mixture, accepted with the independence sampler's Metropolis-Hastings
     ratio p(x') q(x) / (p(x) q(x')). The mixture stays fixed while the chains run, so they keep
-    their target. Why: the rendered posteriors of the small objects are often multimodal (the
+    their target. `defensive` = (share, mean, covariance): one more component, this share of the
+    proposals, wide enough to reach every mode (`DEFENSIVE_SHARE`). Why: the rendered posteriors of the small objects are often multimodal (the
     cream's stiffness shift has three modes, correlated 0.96 with κ); differential evolution
     there proposes mostly between modes and accepts 8-15%, with τ of 100-1300 steps, where a
     proposal that knows the modes jumps between them in one step (docs/posterior.md)."""
 
-    def __init__(self, mixture, inflate: float = 1.5):
+    def __init__(self, mixture, inflate: float = 1.5, defensive: tuple | None = None):
         import emcee
 
-        self.weights = np.asarray(mixture.weights_, float)
-        self.means = np.asarray(mixture.means_, float)
-        self.chol = np.linalg.cholesky(np.asarray(mixture.covariances_, float) * float(inflate) ** 2)
+        weights = np.asarray(mixture.weights_, float)
+        means = np.asarray(mixture.means_, float)
+        covs = np.asarray(mixture.covariances_, float) * float(inflate) ** 2
+        if defensive is not None:
+            share, mean, cov = defensive
+            weights = np.append(weights * (1.0 - float(share)), float(share))
+            means = np.vstack([means, np.asarray(mean, float)[None]])
+            covs = np.concatenate([covs, np.asarray(cov, float)[None]])
+        self.weights = weights / weights.sum()
+        self.means = means
+        self.chol = np.linalg.cholesky(covs)
         self.move = emcee.moves.MHMove(self._propose)
 
     def log_density(self, x: np.ndarray) -> np.ndarray:
@@ -246,7 +263,7 @@ def run_ensembles(
 
     independence > 0 (for cheap targets such as the surrogate: `posterior.surrogate.independence`):
     every ensemble first runs `pilot_steps` with `move` alone; a Gaussian mixture is fitted to the
-    second halves of all pilots (`fit_mixture`) and each ensemble then goes on from its pilot's last
+    second halves of all pilots (`fit_mixture`, plus the defensive wide component) and each ensemble then goes on from its pilot's last
     state for `n_steps` with `move` and, this share of the steps, the mixture's independence
     proposals (`MixtureMove`). Only those `n_steps` are returned."""
     import emcee
@@ -281,7 +298,12 @@ def run_ensembles(
             pilots.append(sampler.get_chain())
             starts[e] = sampler.get_chain()[-1]
         pooled = np.concatenate([c[c.shape[0] // 2 :].reshape(-1, c.shape[-1]) for c in pilots])
-        mixture = MixtureMove(fit_mixture(pooled, seed))
+        wide = (
+            DEFENSIVE_SHARE,
+            pooled.mean(axis=0),
+            np.cov(pooled.T) * DEFENSIVE_SCALE**2 + 1e-4 * np.eye(pooled.shape[1]),
+        )
+        mixture = MixtureMove(fit_mixture(pooled, seed), defensive=wide)
         base = step_moves if step_moves is not None else emcee.moves.StretchMove()
         step_moves = [(base, 1.0 - float(independence)), (mixture.move, float(independence))]
 

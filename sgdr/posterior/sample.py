@@ -173,8 +173,9 @@ class MixtureMove:
     proposes a draw of the mixture, accepted with the independence sampler's Metropolis-Hastings
     ratio p(x') q(x) / (p(x) q(x')). The mixture stays fixed while the chains run, so they keep
     their target. `defensive` = (share, mean, covariance): one more component, this share of the
-    proposals, wide enough to reach every mode (`DEFENSIVE_SHARE`). Why: the rendered posteriors of the small objects are often multimodal (the
-    cream's stiffness shift has three modes, correlated 0.96 with κ); differential evolution
+    proposals, wide enough to reach every mode (`DEFENSIVE_SHARE`). Why: the rendered posteriors
+    of the small objects are often multimodal (the cream's stiffness shift has three modes,
+    correlated 0.96 with κ); differential evolution
     there proposes mostly between modes and accepts 8-15%, with τ of 100-1300 steps, where a
     proposal that knows the modes jumps between them in one step (docs/posterior.md)."""
 
@@ -263,9 +264,10 @@ def run_ensembles(
 
     independence > 0 (for cheap targets such as the surrogate: `posterior.surrogate.independence`):
     every ensemble first runs `pilot_steps` with `move` alone; a Gaussian mixture is fitted to the
-    second halves of all pilots (`fit_mixture`, plus the defensive wide component) and each ensemble then goes on from its pilot's last
-    state for `n_steps` with `move` and, this share of the steps, the mixture's independence
-    proposals (`MixtureMove`). Only those `n_steps` are returned."""
+    second halves of all pilots (`fit_mixture`, plus the defensive wide component) and each
+    ensemble then goes on from its pilot's last state for `n_steps` with `move` and, this share of
+    the steps, the mixture's independence proposals (`MixtureMove`). Only those `n_steps` are
+    returned."""
     import emcee
 
     if space not in ("box", "logit"):

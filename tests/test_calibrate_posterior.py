@@ -112,6 +112,7 @@ def test_the_setup_holds_the_design_search_in_effect_once():
     assert setup["design_search"]["initial_samples"] == ds.initial_samples == 128
     assert setup["design_search"]["line_points"] == ds.line_points
     assert setup["design_search"]["frame_schedule"] == [0.5, 1.0]
+    assert setup["design_search"]["level"] == "effective" != cfg.recon.search.level  # the user's run: "mean"
     assert setup["design_search"]["popsize"] == cfg.recon.search.popsize  # the rest is recon.search's
     other = OmegaConf.to_object(
         compose(["preset=small", "posterior.run=none", "posterior.surrogate.design_search.generations=48"])

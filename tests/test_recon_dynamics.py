@@ -516,6 +516,44 @@ def test_the_search_space_skips_what_the_physics_lacks_and_caps_the_stiffness_at
         search_space(SearchConfig(parameters=["stiffness"]), s["pcfg"], s["model"], 1 / FPS, 40)
 
 
+def test_the_effective_level_moves_kappa_at_a_fixed_stiffness(scene):
+    """recon.search.level=effective: along κ at a fixed level coordinate the anchors' mean effective
+    stiffness stays put (the soft vector's cut springs made up by the level) where with the plain
+    level it falls as κ grows; unit() inverts values() inside the box; the offset is 0 at the middle
+    of κ's range, so the coordinate's box is the level's; an unknown setting names the key."""
+    from types import SimpleNamespace
+
+    from sgdr.identify.config import SearchConfig
+    from sgdr.identify.global_search import SearchConfigError, search_space
+    from sgdr.physics.simulate import effective_stiffness
+
+    s = scene
+    cfg = SearchConfig(parameters=["log10_k", "kappa"], log10_k_range=[1.0, 4.0], kappa_range=[-4.0, 4.0])
+    plain = search_space(cfg, s["pcfg"], s["model"], 1 / FPS, 40)
+    eff = search_space(replace(cfg, level="effective"), s["pcfg"], s["model"], 1 / FPS, 40)
+    assert plain.level_kappa is None and np.array_equal(plain.lo, eff.lo) and np.array_equal(plain.hi, eff.hi)
+
+    def mean_stiffness(space, u):
+        v = space.values(u)
+        t = type(s["model"].spring_rest_length)
+        p = SimpleNamespace(
+            log10_k=np.full(s["model"].n_anchors, float(v["log10_k"][0])), kappa=t(float(v["kappa"][0]))
+        )
+        return float(np.log10(np.mean(effective_stiffness(s["model"], p, s["pcfg"]))))
+
+    line = [np.array([[0.5, k]]) for k in (0.1, 0.5, 0.9)]
+    kept = [mean_stiffness(eff, u) for u in line]
+    fell = [mean_stiffness(plain, u) for u in line]
+    assert max(kept) - min(kept) < 0.01 * (fell[0] - fell[-1]) and fell[0] - fell[-1] > 0.05, (kept, fell)
+    middle = 0.5 * (eff.lo[0] + eff.hi[0])  # the level's box (its top at the stability bound)
+    assert eff.values(np.array([[0.5, 0.5]]))["log10_k"][0] == pytest.approx(middle)  # no offset at κ's middle
+    for u in ([0.3, 0.2], [0.6, 0.8]):
+        v = eff.values(np.array([u]))
+        np.testing.assert_allclose(eff.unit({n: float(v[n][0]) for n in eff.names}), u, atol=1e-9)
+    with pytest.raises(SearchConfigError, match="recon.search.level"):
+        search_space(replace(cfg, level="stiff"), s["pcfg"], s["model"], 1 / FPS, 40)
+
+
 def test_the_field_prior_is_zero_on_a_uniform_field_and_its_gradient_matches_central_differences(scene):
     from sgdr.identify.dynamics import FieldPrior
 

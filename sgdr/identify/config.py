@@ -62,6 +62,11 @@ class SearchConfig:
     # (the bounce's restitution) where the earlier stage left it anywhere (docs/posterior.md,
     # "SBC at small"); 0 = none
     line_points: int = 0
+    # the level's search coordinate: "mean" (log10 k itself) | "effective" (log10 k plus the soft
+    # vector's effect on the anchors' mean stiffness, `level_offsets`: κ moves at a fixed stiffness).
+    # The first frames see the stiffness, so the level and κ trade off along a diagonal valley there
+    # that CMA-ES walks slowly (docs/posterior.md, "The SBC's misses up close")
+    level: str = "mean"
     images_per_call: int = 200  # rendered and scored together (sgdr.render.splat.render_batch); 1 = one at a time
     top_k: int = 5  # candidates whose futures the report compares (within equivalent_tolerance of the best)
     equivalent_tolerance: float = 0.05  # relative loss within which candidates count as fitting equally well
@@ -153,6 +158,7 @@ SEARCH_CHECKS = {
     "initial_samples": non_negative("0: CMA-ES starts at physics.*_init"),
     "frame_schedule": list_of(between(0.0, 1.0, lo_open=True), min_len=1),
     "line_points": non_negative("0: no coordinate sweep"),
+    "level": choice("sgdr.identify.global_search:LEVELS"),
     "image_scale": at_least(1),
     "top_k": at_least(1),
     "equivalent_tolerance": non_negative(),

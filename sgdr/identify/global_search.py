@@ -95,6 +95,7 @@ def region_field(x_rest: np.ndarray, values: dict) -> np.ndarray:
 
 
 UNSTABLE_LOSS = 10.0
+LEVELS = ("mean", "effective")  # recon.search.level: the level's search coordinate
 """The score of a candidate whose rollout is unstable: above any image loss (L1 and D-SSIM <= 1)."""
 
 
@@ -129,17 +130,48 @@ class SearchSpace:
     names: tuple[str, ...]
     lo: np.ndarray  # [d]
     hi: np.ndarray  # [d]
+    # recon.search.level = "effective": the level's coordinate is the effective level
+    # s = log10 k + offset(κ), the offset tabulated over κ's range (`level_offsets`), so that moving κ
+    # at a fixed s keeps the stiffness the anchors feel; None: the level itself
+    level_kappa: np.ndarray | None = None  # [K] ascending
+    level_offset: np.ndarray | None = None  # [K]
+
+    def _offset(self, kappa: np.ndarray) -> np.ndarray:
+        return np.interp(kappa, self.level_kappa, self.level_offset)
 
     def values(self, u: np.ndarray) -> dict[str, np.ndarray]:
         """Unit coordinates [S, d] -> {name: [S] values} (clipped to the box)."""
         u = np.clip(np.atleast_2d(np.asarray(u, float)), 0.0, 1.0)
         x = self.lo + u * (self.hi - self.lo)
+        if self.level_kappa is not None:
+            i, j = self.names.index("log10_k"), self.names.index("kappa")
+            x[:, i] = np.clip(x[:, i] - self._offset(x[:, j]), self.lo[i], self.hi[i])
         return {name: x[:, i] for i, name in enumerate(self.names)}
 
     def unit(self, values: dict) -> np.ndarray:
         """{name: value} -> unit coordinates [d], clipped to the box."""
         x = np.array([float(values[n]) for n in self.names])
+        if self.level_kappa is not None:
+            i, j = self.names.index("log10_k"), self.names.index("kappa")
+            x[i] = x[i] + float(self._offset(x[j]))
         return np.clip((x - self.lo) / np.maximum(self.hi - self.lo, 1e-30), 0.0, 1.0)
+
+
+def level_offsets(model, physics_cfg, kappa_lo: float, kappa_hi: float, n: int = 33) -> tuple[np.ndarray, np.ndarray]:
+    """(κ [n], offset [n]): log10 of the mean effective stiffness of the anchors at log10 k = 0
+    (`effective_stiffness`: the soft vector η(κ) cuts the longer springs as κ grows) at n values of
+    κ over [kappa_lo, kappa_hi], less its value at the middle of that range. On a twin of the torus
+    the first half of the fit window is nearly flat along a diagonal valley of level and κ (a
+    softer soft vector with a lower level), narrow across it: these offsets make that valley the
+    κ axis (docs/posterior.md, "The SBC's misses up close")."""
+    t = ad()
+    kappas = np.linspace(float(kappa_lo), float(kappa_hi), int(n))
+    g = []
+    for kappa in kappas:
+        p = SimpleNamespace(log10_k=np.zeros(model.n_anchors), kappa=t.Float(float(kappa)))
+        g.append(math.log10(float(np.mean(effective_stiffness(model, p, physics_cfg)))))
+    g = np.asarray(g)
+    return kappas, g - float(np.interp(0.5 * (kappas[0] + kappas[-1]), kappas, g))
 
 
 def stable_level(model, kappa_values, dt_frame: float, n_t: int, physics_cfg) -> float:
@@ -196,6 +228,13 @@ def search_space(search_cfg, physics_cfg, model, dt_frame: float, n_t: int, per_
         if "region_contrast" in names:  # the stiffer region sits half the contrast above the level
             cap -= 0.5 * max(abs(v) for v in (lo[names.index("region_contrast")], hi[names.index("region_contrast")]))
         hi[i] = min(hi[i], cap)
+    level = str(getattr(search_cfg, "level", "mean"))
+    if level not in LEVELS:
+        raise SearchConfigError(f"recon.search.level={level!r}: must be one of {list(LEVELS)}")
+    if level == "effective" and "log10_k" in names and "kappa" in names:
+        j = names.index("kappa")
+        kappas, offsets = level_offsets(model, physics_cfg, lo[j], hi[j])
+        return SearchSpace(tuple(names), np.asarray(lo, float), np.asarray(hi, float), kappas, offsets)
     return SearchSpace(tuple(names), np.asarray(lo, float), np.asarray(hi, float))
 
 

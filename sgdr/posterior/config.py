@@ -107,6 +107,7 @@ DESIGN_SEARCH_CHECKS = {
     "generations": at_least(1),
     "line_points": non_negative("0: no coordinate sweep"),
     "frame_schedule": list_of(between(0.0, 1.0, lo_open=True), min_len=1),
+    "level": choice("sgdr.identify.global_search:LEVELS"),
 }
 
 CHECKS: dict[str, Check] = {

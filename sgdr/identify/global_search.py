@@ -95,8 +95,8 @@ def region_field(x_rest: np.ndarray, values: dict) -> np.ndarray:
 
 
 UNSTABLE_LOSS = 10.0
-LEVELS = ("mean", "effective")  # recon.search.level: the level's search coordinate
 """The score of a candidate whose rollout is unstable: above any image loss (L1 and D-SSIM <= 1)."""
+LEVELS = ("mean", "effective")  # recon.search.level: the level's search coordinate
 
 
 def choose_best(result: GlobalSearchResult) -> dict[str, float]:

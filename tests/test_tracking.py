@@ -261,3 +261,33 @@ def test_reconstruction_logs_only_the_settings_that_act(tmp_path):
     assert not any(
         k.startswith("synth") for k in RunTracker(tmp_path, cfg, tracking, sections=tracked_sections(cfg, False)).params
     )
+
+
+def _store_in_a_process(uri: str, start, out) -> None:
+    from sgdr.tracking.tracker import ensure_store
+
+    start.wait()  # every process past its imports, then all at once
+    try:
+        out.put(("ok", ensure_store(TrackingConfig(enabled=True, uri=uri, experiment="sgdr"))))
+    except Exception as exc:  # noqa: BLE001 - the parent asserts on what each process met
+        out.put(("error", repr(exc)))
+
+
+def test_jobs_started_together_on_a_fresh_store_all_get_its_experiment(tmp_path):
+    """Two reconstructions started at once on a new SQLite store: one of them used to fail
+    creating the schema the other was creating ("table alembic_version already exists")."""
+    import multiprocessing as mp
+
+    import mlflow.tracking  # noqa: F401 - imported before the fork, so the processes start at once
+
+    ctx = mp.get_context("fork")
+    start, out = ctx.Barrier(4), ctx.Queue()
+    uri = f"sqlite:///{tmp_path / 'store' / 'mlflow.db'}"
+    procs = [ctx.Process(target=_store_in_a_process, args=(uri, start, out)) for _ in range(4)]
+    for p in procs:
+        p.start()
+    results = [out.get(timeout=120) for _ in procs]
+    for p in procs:
+        p.join(timeout=60)
+    assert all(kind == "ok" for kind, _ in results), results
+    assert len({value for _, value in results}) == 1, results

@@ -27,8 +27,10 @@ current directory, so every driver run from anywhere uses one store; without a r
 `mlartifacts/` beside the database. Any other URI (`http://...`) is passed to MLflow unchanged.
 The absolute store is logged on entry.
 
-Create the SQLite store once before a parallel sweep (`ensure_store`), so concurrent jobs do
-not race on its schema migration.
+Jobs started together on a fresh SQLite store (two reconstructions at once) create it one at a
+time: `ensure_store` holds an exclusive lock on `<database>.lock` beside it while it creates
+the schema and the experiment (without it the second job failed on "table alembic_version
+already exists").
 """
 
 from __future__ import annotations
@@ -148,23 +150,29 @@ def select_params(flat: Mapping[str, Any], sections=None, exclude=()) -> dict[st
 
 def ensure_store(tracking: TrackingConfig, base: Path | None = None) -> str | None:
     """Create the SQLite database and the experiment if missing; return the experiment id.
-
-    Call once before launching parallel jobs. Returns None when tracking is disabled.
+    Safe to call from jobs started together (an SQLite store is created under a file lock).
+    Returns None when tracking is disabled.
     """
     if not tracking.enabled:
         return None
+    import contextlib
+    import fcntl
+
     from mlflow.tracking import MlflowClient
 
     uri = resolve_uri(tracking.uri, base)
-    client = MlflowClient(tracking_uri=uri)
-    exp = client.get_experiment_by_name(tracking.experiment)
-    if exp is not None:
-        return exp.experiment_id
-    artifact_location = None
-    if uri.startswith("sqlite:///"):
-        db = Path(uri[len("sqlite:///") :])
-        artifact_location = (db.parent / "mlartifacts").as_uri()
-    return client.create_experiment(tracking.experiment, artifact_location=artifact_location)
+    db = Path(uri[len("sqlite:///") :]) if uri.startswith("sqlite:///") else None
+    with contextlib.ExitStack() as stack:
+        if db is not None:
+            db.parent.mkdir(parents=True, exist_ok=True)
+            lock = stack.enter_context(open(db.with_name(db.name + ".lock"), "a"))
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        client = MlflowClient(tracking_uri=uri)
+        exp = client.get_experiment_by_name(tracking.experiment)
+        if exp is not None:
+            return exp.experiment_id
+        artifact_location = (db.parent / "mlartifacts").as_uri() if db is not None else None
+        return client.create_experiment(tracking.experiment, artifact_location=artifact_location)
 
 
 def _interrupted(exc: BaseException | None) -> bool:

@@ -407,3 +407,36 @@ def test_the_silhouette_offsets_triangulate_where_the_object_stands_from_the_ima
     assert np.isnan(d1).all()
     end1, sigma1 = offset_discrepancy(d1)
     assert np.all(end1 == 0.0) and sigma1 == 0.0
+
+
+def test_a_climb_walks_up_a_leaning_ridge_from_the_best_evaluation_and_stays_in_the_prior():
+    """The design lies along the thin leaning ridge of `_ridge_problem` up to 1.5 sd below its top
+    (a = 0.5; 1.125 nats): the climb reaches the top within its budget; a budget under one
+    generation climbs nothing."""
+    from sgdr.posterior.surrogate import CLIMB_POPSIZE, climb
+
+    problem, log_like = _ridge_problem()
+    a = np.linspace(0.02, 0.2, 7)
+    start = np.vstack([np.column_stack([a, 0.5 + 0.5 * (a - 0.5)]), [[0.9, 0.1]]])
+    ll = log_like(start)
+    thetas, lls = climb(log_like, start, ll, problem, 96, 10.0, seed=0)
+    assert len(lls) <= 96 and len(lls) % CLIMB_POPSIZE == 0 and np.allclose(lls, log_like(thetas))
+    assert np.all((thetas >= problem.low) & (thetas <= problem.high))
+    assert ll.max() < -1.0 and lls.max() > -0.1, (ll.max(), lls.max())
+    none_t, none_l = climb(log_like, start, ll, problem, CLIMB_POPSIZE - 1, 10.0, seed=0)
+    assert none_t.shape == (0, 2) and none_l.size == 0
+
+
+def test_the_surrogate_rounds_record_their_climb():
+    problem, log_like = _ridge_problem()
+    start = design(problem, np.zeros((0, 2)), 0, 16, seed=0)
+
+    def chains_of(lp, walkers):
+        return run_ensembles(lp, problem, 10, 400, 2, 0.05, seed=0, move="de", space="logit", start=walkers)
+
+    sc = SurrogateConfig(n_initial=0, n_sobol=0, n_validate=16, max_rounds=1, chain_steps=400, climb=16,
+                         independence=0.0)  # fmt: skip
+    _, _, _, record = sample_with_surrogate(log_like, problem, start, sc, chains_of, seed=0)
+    first = record.rounds[0]
+    assert first["climb_evaluations"] == 16 and first["climb_gain_nats"] >= 0.0
+    assert len(record.log_like) == len(start) + 16 + 16  # the design, the climb, the check's draws

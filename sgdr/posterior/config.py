@@ -98,7 +98,9 @@ SURROGATE_CHECKS = {
     "start_within": positive(),
     "edge_points": Check(lambda x: isinstance(x, int) and (x == 0 or x >= 2), "must be 0 (no edge probes) or >= 2"),
     "edge_within": positive(),
-    "climb": Check(lambda x: isinstance(x, int) and (x == 0 or x >= 8), "must be 0 (no climb) or >= 8 (one generation)"),
+    "climb": Check(
+        lambda x: isinstance(x, int) and (x == 0 or x >= 8), "must be 0 (no climb) or >= 8 (one generation)"
+    ),
     "independence": between(0.0, 1.0, hi_open=True),
     "pilot_steps": at_least(2, "the mixture of the independence proposals is fitted to the pilot's second half"),
 }

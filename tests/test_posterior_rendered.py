@@ -291,19 +291,13 @@ def test_edges_sit_one_interval_width_beyond_each_side_inside_the_prior_on_the_d
     pool = np.column_stack([a, (0.015 + 0.1 * (a - 0.5) + rng.normal(0, 0.005, a.size)).clip(0, 1)])
     params, points, axes = edge_starts(pool, problem)
     q05, q95 = np.quantile(pool, [0.05, 0.95], axis=0)
-    assert params == [0, 0, 1, 1]
+    assert params == [0, 0, 1]  # b's lower side: the prior's bound is nearer than half the distance
     assert points[0, 0] == pytest.approx(q05[0] - (q95[0] - q05[0]))
     assert points[1, 0] == pytest.approx(q95[0] + (q95[0] - q05[0]))
     # b follows the draws' leaning (0.1 per unit of a) to the edge; its axis there is b's sd given a
     assert points[1, 1] == pytest.approx(0.015 + 0.1 * (points[1, 0] - 0.5), abs=0.002)
     assert abs(axes[1][1, 0]) == pytest.approx(0.005, rel=0.1) and axes[1][0, 0] == 0.0
-    # b's lower side: the prior's bound is nearer than a width, so the probe sits on it
-    assert 0.0 < q05[1] < q95[1] - q05[1] and points[2, 1] == 0.0
-    assert points[3, 1] == pytest.approx(q95[1] + (q95[1] - q05[1]))
-    # an interval that ends at the bound leaves nothing there to probe
-    at_bound = np.column_stack([a, rng.uniform(0.0, 0.02, a.size)])
-    params, points, _ = edge_starts(at_bound, problem)
-    assert params == [0, 0, 1] and points[2, 1] == pytest.approx(np.quantile(at_bound[:, 1], 0.95) + 0.018, abs=0.001)
+    assert points[2, 1] == pytest.approx(q95[1] + (q95[1] - q05[1]))
 
 
 def test_edge_probes_find_a_leaning_ridge_and_stay_low_around_a_posterior_that_reaches_far_enough():

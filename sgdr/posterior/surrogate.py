@@ -254,18 +254,13 @@ def design_start(thetas: np.ndarray, log_like: np.ndarray, problem, within: floa
 
 
 EDGE_BEYOND = 1.0  # how far beyond each side of a 90% interval its edge probe sits, in interval widths
-# a side nearer the prior's bound than EDGE_BEYOND widths is probed at the bound, unless the interval
-# ends within this share of a width of it (nothing left between them to miss)
-EDGE_AT_BOUND = 0.1
 EDGE_SPREAD = 4.0  # an edge's lines: its start ± this many conditional sd along each principal axis
 
 
 def edge_starts(pool: np.ndarray, problem) -> tuple[list[int], np.ndarray, list[np.ndarray]]:
     """The edges of the posterior draws `pool` [N, D]: per parameter j and side, θ_j `EDGE_BEYOND`
-    widths of its 90% interval beyond the interval's end, or the prior's bound where that is nearer
-    (a side ending within `EDGE_AT_BOUND` widths of the bound gets none: measured on an SBC twin,
-    restitution's truth 0.003 lay 2.5 nats above every evaluation, below an interval starting at
-    0.155 that a half-width rule left unprobed), the others at their mean given θ_j (the
+    widths of its 90% interval beyond the interval's end (inside the prior; a side whose move the
+    prior's bound leaves shorter than half that gets none), the others at their mean given θ_j (the
     draws' linear regression on θ_j: a ridge that leans is followed, not left). Returns (each
     edge's parameter, [M, D] the starts, each edge's [D, D] axes: the other parameters' covariance
     given θ_j, as columns scaled to one sd, zero in row j). For a Gaussian posterior an edge lies
@@ -286,7 +281,7 @@ def edge_starts(pool: np.ndarray, problem) -> tuple[list[int], np.ndarray, list[
         scaled[others] = v * np.sqrt(np.clip(w, 0.0, None))
         for end, side in ((q05[j], -1.0), (q95[j], 1.0)):
             value = float(np.clip(end + side * EDGE_BEYOND * width, problem.low[j], problem.high[j]))
-            if abs(value - end) < EDGE_AT_BOUND * width:
+            if abs(value - end) < 0.5 * EDGE_BEYOND * width:
                 continue
             point = mean.copy()
             point[j] = value

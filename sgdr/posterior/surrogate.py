@@ -391,12 +391,12 @@ def sample_with_surrogate(true_log_like, problem, start: np.ndarray, sc: Surroga
         t_round = time.time()
         climbed = {}
         if int(sc.climb) > 0:
-            before = float(np.max(np.where(np.isfinite(record.log_like), record.log_like, -np.inf)))
+            before = _best(record.log_like)
             up_t, up_l = climb(true_log_like, record.thetas, record.log_like, problem, int(sc.climb), sc.start_within,
                                seed + r)  # fmt: skip
             record.thetas = np.concatenate([record.thetas, up_t])
             record.log_like = np.concatenate([record.log_like, up_l])
-            after = float(np.max(np.where(np.isfinite(record.log_like), record.log_like, -np.inf)))
+            after = _best(record.log_like)
             climbed = {"climb_evaluations": int(up_l.size), "climb_gain_nats": after - before}
             log.info("posterior surrogate: round %d, climb of %d evaluations, best log L +%.2f nats", r + 1,
                      up_l.size, after - before)  # fmt: skip
@@ -439,7 +439,7 @@ def sample_with_surrogate(true_log_like, problem, start: np.ndarray, sc: Surroga
         if covered >= sc.inside_min and int(sc.edge_points) > 0:
             # the check holds where the chains went; whether the likelihood goes on beyond their reach
             probes, probe_ll, edge_ll = probe_edges(true_log_like, pool, problem, int(sc.edge_points))
-            top = float(np.max(record.log_like[np.isfinite(record.log_like)], initial=-np.inf))
+            top = _best(record.log_like)
             record.thetas = np.concatenate([record.thetas, probes])
             record.log_like = np.concatenate([record.log_like, probe_ll])
             open_edges = int(np.sum(edge_ll >= top - float(sc.edge_within)))
@@ -455,6 +455,11 @@ def sample_with_surrogate(true_log_like, problem, start: np.ndarray, sc: Surroga
             record.validated = True
             break
     return chains, log_probs, acceptance, record
+
+
+def _best(log_like: np.ndarray) -> float:
+    """The highest finite log L (-inf when none is: every rollout unstable)."""
+    return float(np.max(log_like[np.isfinite(log_like)], initial=-np.inf))
 
 
 def _lengthscales(surrogate: GPSurrogate) -> list | None:

@@ -72,6 +72,34 @@ def test_verdict_names_each_failed_criterion():
     assert any("never moved" in f and "ensemble 2" in f for f in d["failed"]), d["failed"]
 
 
+def test_longer_chains_lengthens_until_the_chains_converge_and_only_when_length_helps():
+    """The surrogate's chains are lengthened while only τ, ESS or R-hat fail: each call asks for more
+    steps, the AR(1) chains converge at the asked length before the cap, and a failure that length
+    does not mend (a bad acceptance fraction) or the cap ends it."""
+    from sgdr.posterior.sample import longer_chains
+
+    cfg = _post_cfg()
+    acc = np.full((4, 8), 0.35)
+    n, lengths = 200, []
+    while True:
+        d = diagnose(_ar1_chains(4, n, 8, 2, rho=0.95, seed=len(lengths)), ["a", "b"], cfg, acc)  # τ = 39
+        steps = longer_chains(d, cfg, cap=40000)
+        if steps is None:
+            break
+        assert steps >= 1.5 * n and steps <= 40000
+        lengths.append(n := steps)
+    assert d["converged"], (lengths, d["failed"])
+    assert 50 * 39 * 0.8 < lengths[-1] < 40000 and len(lengths) <= 4, lengths
+    short = _ar1_chains(4, 200, 8, 1, rho=0.95)
+    d = diagnose(short, ["a"], cfg, acc)  # τ estimated short on short chains: the first ask is short too
+    assert longer_chains(d, cfg, cap=40000) == math.ceil(1.2 * 50 * d["tau_max"]) > 300
+    assert longer_chains(diagnose(short, ["a"], cfg, acc), cfg, cap=250) == 250
+    assert longer_chains(diagnose(short, ["a"], cfg, acc), cfg, cap=200) is None
+    bad = acc.copy()
+    bad[1] = 0.02
+    assert longer_chains(diagnose(short, ["a"], cfg, bad), cfg, cap=40000) is None
+
+
 def test_de_moves_sample_a_correlated_gaussian_and_converge():
     """posterior.moves=de on a known target inside a box prior: the verdict's criteria hold and the
     5-95% interval is the Gaussian's."""

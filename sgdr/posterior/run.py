@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import time
 from pathlib import Path
 
@@ -39,7 +38,15 @@ from sgdr.physics import Ground
 from sgdr.posterior import predictive as pp
 from sgdr.posterior.likelihood import RenderedImages, RenderedLikelihood, SilhouetteLikelihood, reference_index
 from sgdr.posterior.rollouts import ROLLOUTS
-from sgdr.posterior.sample import LogProbability, Problem, diagnose, headline, kept_samples, run_ensembles
+from sgdr.posterior.sample import (
+    LogProbability,
+    Problem,
+    diagnose,
+    headline,
+    kept_samples,
+    longer_chains,
+    run_ensembles,
+)
 from sgdr.posterior.surrogate import design, sample_with_surrogate
 from sgdr.report.html import add_section
 from sgdr.run_folder import run_asset_and_sequence, run_sequence, sequence_digest
@@ -101,12 +108,12 @@ def run_posterior(cfg, rollout=None, progress: bool = False) -> dict:
         chains, log_probs, acceptance = run_chains(log_prob, pc.n_steps)
     sample_seconds = time.time() - t0
     diag = diagnose(chains, problem.names, pc, acceptance)
-    if surrogate is not None and surrogate.validated and diag["tau_max"] and diag["chain_over_tau"] < pc.tau_factor:
-        # the surrogate stands; its chains are only too short for the 50 τ criterion: lengthen them
-        # (GP predictions only, no renders), at most 10 x posterior.surrogate.chain_steps
-        steps = min(math.ceil(1.2 * pc.tau_factor * diag["tau_max"]), 10 * int(pc.surrogate.chain_steps))
-        log.info("posterior surrogate: chains of %d steps are %.0f τ; again with %d", diag["n_steps"],
-                 diag["chain_over_tau"], steps)  # fmt: skip
+    cap = 10 * int(pc.surrogate.chain_steps)
+    while surrogate is not None and surrogate.validated and (steps := longer_chains(diag, pc, cap)):
+        # the surrogate stands; its chains are only too short (τ, ESS or R-hat): lengthen them, again
+        # while they stay short (GP predictions only, no renders), at most 10 x posterior.surrogate.chain_steps
+        log.info("posterior surrogate: chains of %d steps are too short (%s); again with %d", diag["n_steps"],
+                 "; ".join(diag["failed"]), steps)  # fmt: skip
         chains, log_probs, acceptance = run_chains(surrogate.surrogate, steps, surrogate.start, **on_surrogate)
         diag = diagnose(chains, problem.names, pc, acceptance)
     if surrogate is not None and not surrogate.validated:

@@ -434,6 +434,29 @@ def diagnose(chains: np.ndarray, names: list, post_cfg, acceptance: np.ndarray) 
     }
 
 
+def longer_chains(diag: dict, post_cfg, cap: int) -> int | None:
+    """How many steps chains need that `diag` found too short, or None when length cannot help (a
+    criterion other than τ, R-hat and ESS failed, τ could not be estimated, the chains already
+    reach `cap`, or nothing failed). The τ criterion asks for 1.2 x tau_factor x τ; an ESS short of
+    ess_min for its ratio (ESS grows with the length) x 1.2; an R-hat alone for twice the length;
+    at least 1.5 x the length (τ estimated on short chains is itself short), at most `cap`."""
+    n = int(diag["n_steps"])
+    if diag["converged"] or n >= int(cap) or diag["tau_max"] is None:
+        return None
+    lengthens = ("chains of ", "R-hat above ", "ESS (bulk or tail) below ")
+    if any(not f.startswith(lengthens) for f in diag["failed"]):
+        return None
+    need = 1.5 * n
+    if n < post_cfg.tau_factor * diag["tau_max"]:
+        need = max(need, 1.2 * post_cfg.tau_factor * diag["tau_max"])
+    ess = [min(diag["ess_bulk"][k] or 0.0, diag["ess_tail"][k] or 0.0) for k in diag["names"]]
+    if min(ess) < post_cfg.ess_min:
+        need = max(need, 1.2 * n * post_cfg.ess_min / max(min(ess), 1.0))
+    if any(r is None or r > post_cfg.rhat_max for r in diag["rhat"].values()):
+        need = max(need, 2.0 * n)
+    return int(min(math.ceil(need), int(cap)))
+
+
 def kept_samples(chains: np.ndarray, diag: dict) -> np.ndarray:
     """[N, D] the pooled post-burn-in, thinned samples `diag` summarised."""
     return chains[:, diag["burn_in"] :: diag["thin"]].reshape(-1, chains.shape[-1])

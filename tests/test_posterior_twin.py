@@ -158,6 +158,9 @@ def test_a_design_search_is_kept_and_reused_only_for_the_same_sequence_and_setti
         cfg, recon=replace(cfg.recon, search=replace(cfg.recon.search, generations=cfg.recon.search.generations + 1))
     )
     assert search_key(longer, asset_dir, seq) == key
+    # another prior box: another design search's box (`prior_search_box`)
+    priors = replace(pc.priors, restitution=[0.0, 0.8])
+    assert search_key(replace(cfg, posterior=replace(pc, priors=priors)), asset_dir, seq) != key
     noisy = twin_sequence(asset_dir, tmp_path / "noisy", {}, image_noise=0.05)
     assert search_key(cfg, asset_dir, noisy) != key
     assert cached_search(path, search_key(cfg, asset_dir, noisy), search(5.0))["candidates"] == [[5.0]]
@@ -182,6 +185,28 @@ def test_the_design_search_is_recon_search_with_the_posteriors_budget_and_window
         assert sc.popsize == 7 and sc.image_scale == cfg.recon.search.image_scale
         assert list(sc.parameters) == list(cfg.recon.search.parameters)
         assert cfg.recon.search.line_points == 0  # the user's own search is left as it was
+
+
+def test_the_design_search_box_is_the_posteriors_prior_box():
+    """A truth the SBC draws from the prior must be reachable by the design search: its box is the
+    prior's (the identification's own restitution ends at 0.9), the level's around the asset's level."""
+    from omegaconf import OmegaConf
+
+    from sgdr.config import compose
+    from sgdr.posterior.run import design_search_config, prior_search_box
+
+    overrides = ["preset=small", "posterior.priors.log10_k_shift=[-0.5,1.0]"]
+    for cfg in (compose(overrides), OmegaConf.to_object(compose(overrides))):
+        assert list(cfg.recon.search.restitution_range) == [0.0, 0.9]
+        pc = cfg.posterior
+        sc = prior_search_box(design_search_config(cfg), pc.priors, pc.parameters, level=3.1)
+        assert list(sc.restitution_range) == [0.0, 1.0] and list(sc.friction_range) == [0.0, 1.0]
+        assert list(sc.kappa_range) == [-4.0, 4.0]
+        assert list(sc.log10_k_range) == pytest.approx([2.6, 4.1])
+        assert sc.generations == pc.surrogate.design_search.generations  # the rest as before
+        # a parameter the posterior does not sample keeps the identification's range
+        only = prior_search_box(design_search_config(cfg), pc.priors, ["friction"], level=3.1)
+        assert list(only.restitution_range) == [0.0, 0.9]
 
 
 def test_a_resumed_calibration_case_keeps_its_twin_only_when_truth_scale_and_noise_match(asset_dir, tmp_path):

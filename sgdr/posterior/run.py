@@ -250,9 +250,32 @@ def design_search_config(cfg):
     return replace(search, **over) if is_dataclass(search) else OmegaConf.merge(search, over)
 
 
+SEARCHED_AS = {"log10_k_shift": "log10_k", "kappa": "kappa", "friction": "friction", "restitution": "restitution"}
+
+
+def prior_search_box(sc, priors, sampled, level: float):
+    """The design search's settings with its box the posterior's prior box: each sampled parameter's
+    `recon.search.<name>_range` from `posterior.priors` (the shift's as the level `level` + the
+    shift; the stability cap still applies). The identification's own box can be narrower (its
+    restitution ends at 0.9): a truth outside it can never be a design candidate. On the SBC's fourth
+    draw, case 33's e = 0.976 lay there, and its posterior missed all four truths."""
+    from dataclasses import is_dataclass, replace
+
+    from omegaconf import OmegaConf
+
+    over = {}
+    for name in sampled:
+        if name in SEARCHED_AS:
+            a, b = (float(v) for v in getattr(priors, name))
+            shift = level if SEARCHED_AS[name] == "log10_k" else 0.0
+            over[f"{SEARCHED_AS[name]}_range"] = [a + shift, b + shift]
+    return replace(sc, **over) if is_dataclass(sc) else OmegaConf.merge(sc, over)
+
+
 def search_key(cfg, asset_dir: Path, seq_dir: Path) -> str:
     """The digest of what decides a design search: the asset's and the sequence's files, the
-    search's settings (`design_search_config`), the image loss's weight, the renderer's settings,
+    search's settings (`design_search_config`), the prior box it searches (`prior_search_box`), the
+    image loss's weight, the renderer's settings,
     the seed."""
     asset_files = {p.name: file_hash(p) for p in sorted(Path(asset_dir).iterdir()) if p.is_file()}
     return key_hash(
@@ -260,6 +283,7 @@ def search_key(cfg, asset_dir: Path, seq_dir: Path) -> str:
             "asset": asset_files,
             "sequence": sequence_digest(Path(seq_dir)),
             "search": design_search_config(cfg),
+            "priors": {n: [float(v) for v in getattr(cfg.posterior.priors, n)] for n in cfg.posterior.parameters},
             "lambda_dssim": float(cfg.recon.lambda_dssim),
             "render": cfg.render,
             "seed": int(cfg.seed),
@@ -297,7 +321,8 @@ def search_sequence(cfg, asset, seq, images: RenderedImages | None, progress: bo
     ({"names", "candidates", "losses", ...})."""
     from sgdr.identify.global_search import REGION_START, global_search, search_space
 
-    sc = design_search_config(cfg)
+    level = float(np.mean(asset.values["log10_k"]))
+    sc = prior_search_box(design_search_config(cfg), cfg.posterior.priors, cfg.posterior.parameters, level)
     if images is None or images.scorer.image_scale != int(sc.image_scale):
         images = RenderedImages(asset, seq, None, cfg.render, cfg.recon.lambda_dssim, sc.image_scale,
                                 sc.images_per_call)  # fmt: skip

@@ -275,8 +275,7 @@ def prior_search_box(sc, priors, sampled, level: float):
 def search_key(cfg, asset_dir: Path, seq_dir: Path) -> str:
     """The digest of what decides a design search: the asset's and the sequence's files, the
     search's settings (`design_search_config`), the prior box it searches (`prior_search_box`), the
-    image loss's weight, the renderer's settings,
-    the seed."""
+    image loss's weight, the renderer's settings, the seed."""
     asset_files = {p.name: file_hash(p) for p in sorted(Path(asset_dir).iterdir()) if p.is_file()}
     return key_hash(
         {

@@ -250,6 +250,11 @@ def design_search_config(cfg):
     return replace(search, **over) if is_dataclass(search) else OmegaConf.merge(search, over)
 
 
+def asset_level(asset) -> float:
+    """The asset's stiffness level: the mean of its log10 k field, what log10_k_shift shifts."""
+    return float(np.mean(asset.values["log10_k"]))
+
+
 SEARCHED_AS = {"log10_k_shift": "log10_k", "kappa": "kappa", "friction": "friction", "restitution": "restitution"}
 
 
@@ -320,8 +325,7 @@ def search_sequence(cfg, asset, seq, images: RenderedImages | None, progress: bo
     ({"names", "candidates", "losses", ...})."""
     from sgdr.identify.global_search import REGION_START, global_search, search_space
 
-    level = float(np.mean(asset.values["log10_k"]))
-    sc = prior_search_box(design_search_config(cfg), cfg.posterior.priors, cfg.posterior.parameters, level)
+    sc = prior_search_box(design_search_config(cfg), cfg.posterior.priors, cfg.posterior.parameters, asset_level(asset))
     if images is None or images.scorer.image_scale != int(sc.image_scale):
         images = RenderedImages(asset, seq, None, cfg.render, cfg.recon.lambda_dssim, sc.image_scale,
                                 sc.images_per_call)  # fmt: skip
@@ -431,7 +435,7 @@ def candidates_as_theta(search: dict, asset, problem) -> np.ndarray:
     cand = np.asarray(search["candidates"], float)
     loss = np.asarray(search["losses"], float)
     cand = cand[np.argsort(loss, kind="stable")]
-    level = float(np.mean(asset.values["log10_k"]))
+    level = asset_level(asset)
     out = np.repeat(problem.map_theta[None], len(cand), axis=0)
     for j, name in enumerate(problem.names):
         key = "log10_k" if name == "log10_k_shift" else name

@@ -342,7 +342,8 @@ def diagnose(chains: np.ndarray, names: list, post_cfg, acceptance: np.ndarray) 
 
     Returns a JSON-ready dict: tau [E][D], tau_max, burn_in, thin, chain_over_tau, rhat, ess_bulk,
     ess_tail (per name), acceptance [E], the pooled kept samples' median / q05 / q95 per name,
-    n_kept, converged, failed (one sentence per failed criterion)."""
+    n_kept, converged, failed (one sentence per failed criterion), failed_criteria (their names:
+    stuck, tau_unknown, tau, rhat, ess, acceptance)."""
     import arviz as az
     import emcee
 
@@ -360,7 +361,7 @@ def diagnose(chains: np.ndarray, names: list, post_cfg, acceptance: np.ndarray) 
                     tau[e, j] = emcee.autocorr.integrated_time(chains[e][:, moved, j : j + 1], quiet=True)[0]
                 if moved.sum() < n_walk:
                     stuck.append(f"ensemble {e + 1} {names[j]}: {n_walk - int(moved.sum())} of {n_walk}")
-    failed = []
+    failed, kinds = [], []  # one sentence per failed criterion, and its name (`failed_criteria`)
     tau_ok = bool(np.all(np.isfinite(tau)) and np.all(tau > 0))
     tau_max = float(np.max(tau)) if tau_ok else float("nan")
     if tau_ok:
@@ -369,13 +370,16 @@ def diagnose(chains: np.ndarray, names: list, post_cfg, acceptance: np.ndarray) 
         burn, thin = n_steps // 2, 1
     if stuck:
         failed.append("walkers that never moved (no accepted step): " + ", ".join(stuck))
+        kinds.append("stuck")
     if not tau_ok:
         failed.append("the autocorrelation time τ could not be estimated for every parameter and ensemble")
+        kinds.append("tau_unknown")
     elif n_steps < post_cfg.tau_factor * tau_max:
         failed.append(
             f"chains of {n_steps} steps are {n_steps / tau_max:.1f} τ long (max τ = {tau_max:.1f} steps), "
             f"need >= {post_cfg.tau_factor:g} τ (posterior.n_steps >= {math.ceil(post_cfg.tau_factor * tau_max)})"
         )
+        kinds.append("tau")
     kept = chains[:, burn::thin]  # [E, K, W, D]
     draws = kept.reshape(n_ens, -1, dim)  # step-major: the walkers of one step, then the next step
     by_walker = kept.transpose(0, 2, 1, 3).reshape(n_ens, -1, dim)  # walker-major: one walker's steps, then the next
@@ -392,6 +396,7 @@ def diagnose(chains: np.ndarray, names: list, post_cfg, acceptance: np.ndarray) 
     bad_r = [f"{n} {rhat[n]:.3f}" for n in names if not rhat[n] <= post_cfg.rhat_max]
     if bad_r:
         failed.append(f"R-hat above {post_cfg.rhat_max:g} across the ensembles: {', '.join(bad_r)}")
+        kinds.append("rhat")
     bad_e = [
         f"{n} {min(ess_bulk[n], ess_tail[n]):.0f}"
         for n in names
@@ -399,6 +404,7 @@ def diagnose(chains: np.ndarray, names: list, post_cfg, acceptance: np.ndarray) 
     ]
     if bad_e:
         failed.append(f"ESS (bulk or tail) below {post_cfg.ess_min:g}: {', '.join(bad_e)}")
+        kinds.append("ess")
     acc = np.asarray(acceptance, float).mean(axis=1)  # [E]
     bad_a = [
         f"ensemble {e + 1} {a:.2f}"
@@ -409,6 +415,7 @@ def diagnose(chains: np.ndarray, names: list, post_cfg, acceptance: np.ndarray) 
         failed.append(
             f"acceptance fraction outside [{post_cfg.acceptance_min:g}, {post_cfg.acceptance_max:g}]: {', '.join(bad_a)}"
         )
+        kinds.append("acceptance")
     pooled = draws.reshape(-1, dim)
     q05, q50, q95 = np.percentile(pooled, [5, 50, 95], axis=0)
     return {
@@ -431,6 +438,7 @@ def diagnose(chains: np.ndarray, names: list, post_cfg, acceptance: np.ndarray) 
         "q95": {n: float(q95[j]) for j, n in enumerate(names)},
         "converged": not failed,
         "failed": failed,
+        "failed_criteria": kinds,
     }
 
 
@@ -443,8 +451,7 @@ def longer_chains(diag: dict, post_cfg, cap: int) -> int | None:
     n = int(diag["n_steps"])
     if diag["converged"] or n >= int(cap) or diag["tau_max"] is None:
         return None
-    lengthens = ("chains of ", "R-hat above ", "ESS (bulk or tail) below ")
-    if any(not f.startswith(lengthens) for f in diag["failed"]):
+    if not set(diag["failed_criteria"]) <= {"tau", "rhat", "ess"}:
         return None
     need = 1.5 * n
     if n < post_cfg.tau_factor * diag["tau_max"]:

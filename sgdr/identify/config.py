@@ -67,6 +67,15 @@ class SearchConfig:
     # The first frames see the stiffness, so the level and κ trade off along a diagonal valley there
     # that CMA-ES walks slowly (docs/posterior.md, "The SBC's misses up close")
     level: str = "mean"
+    # the last window's CMA-ES runs from this many starts side by side: the previous window's best and
+    # the best of its other regions, start_distance apart in the unit box; the worse half stops after
+    # each phase (`halving_phases`). The whole window's basins are narrow and lie behind valleys that
+    # one local search does not cross (docs/posterior.md, "The SBC's fourth draw"); 1 = one search
+    starts: int = 1
+    # friction and restitution swept together on a contact_points x contact_points grid after each
+    # coordinate sweep (`contact_grid`); 0 = none
+    contact_points: int = 0
+    start_distance: float = 0.2
     images_per_call: int = 200  # rendered and scored together (sgdr.render.splat.render_batch); 1 = one at a time
     top_k: int = 5  # candidates whose futures the report compares (within equivalent_tolerance of the best)
     equivalent_tolerance: float = 0.05  # relative loss within which candidates count as fitting equally well
@@ -159,6 +168,9 @@ SEARCH_CHECKS = {
     "frame_schedule": list_of(between(0.0, 1.0, lo_open=True), min_len=1),
     "line_points": non_negative("0: no coordinate sweep"),
     "level": choice("sgdr.identify.global_search:LEVELS"),
+    "starts": at_least(1),
+    "contact_points": non_negative("0: no contact grid"),
+    "start_distance": positive(),
     "image_scale": at_least(1),
     "top_k": at_least(1),
     "equivalent_tolerance": non_negative(),

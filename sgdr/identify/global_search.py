@@ -518,6 +518,30 @@ def _record(stage: dict, space: SearchSpace, values: dict, losses: np.ndarray, g
     stage["generation"].append(np.full(losses.size, generation))
 
 
+def distinct_starts(u: np.ndarray, losses: np.ndarray, first: np.ndarray, n: int, distance: float) -> np.ndarray:
+    """Up to `n` starts [m, d] in unit coordinates: `first`, then the candidates `u` [S, d] in order of
+    their `losses`, each taken when it lies at least `distance` (Euclidean, unit box) from every
+    start taken before: the best of each region the earlier window liked, not its best's neighbours."""
+    chosen = [np.asarray(first, float)]
+    for i in np.argsort(losses, kind="stable"):
+        if len(chosen) >= n:
+            break
+        if np.isfinite(losses[i]) and min(np.linalg.norm(u[i] - c) for c in chosen) >= distance:
+            chosen.append(np.asarray(u[i], float))
+    return np.stack(chosen)
+
+
+def halving_phases(generations: int, n_starts: int) -> list[tuple[int, int]]:
+    """(generations, starts kept) per phase of a multi-start stage: the generations split evenly
+    over 1 + ceil(log2 n) phases, the starts halved (rounded up) after each, to one."""
+    n_phases = 1 + int(math.ceil(math.log2(max(1, n_starts))))
+    kept, out = n_starts, []
+    for g in stage_generations(generations, n_phases):
+        out.append((g, kept))
+        kept = max(1, (kept + 1) // 2)
+    return out
+
+
 def coordinate_sweep(score, space: SearchSpace, u: np.ndarray, loss: float | None, n_points: int, record=None):
     """From unit coordinates `u` (its loss `loss`, or None: scored with the first line), each
     parameter in turn over `n_points` evenly spread values of its whole range, (i + 1/2) / n, the
@@ -543,6 +567,34 @@ def coordinate_sweep(score, space: SearchSpace, u: np.ndarray, loss: float | Non
     return u, loss
 
 
+def contact_grid(score, space: SearchSpace, u: np.ndarray, loss: float | None, n_points: int, record=None):
+    """From unit coordinates `u` (its loss `loss`, or None), friction and restitution together over an
+    `n_points` x `n_points` grid of their ranges, (i + 1/2) / n each, the others kept: one batch of
+    `score`, its best moving the point if it beats `loss`. The two act jointly through the contact
+    (how long the object touches the ground decides how much friction acts): on a twin the truth's
+    basin can show only where both are right, which a sweep of one at a time does not reach
+    (docs/posterior.md, "The SBC's misses in friction and restitution"). Returns `u` unchanged where
+    the space lacks either."""
+    u = np.asarray(u, float).copy()
+    if "friction" not in space.names or "restitution" not in space.names or n_points <= 0:
+        return u, loss
+    i, j = space.names.index("friction"), space.names.index("restitution")
+    g = (np.arange(int(n_points)) + 0.5) / int(n_points)
+    trial = np.repeat(u[None, :], g.size * g.size, axis=0)
+    trial[:, i] = np.repeat(g, g.size)
+    trial[:, j] = np.tile(g, g.size)
+    if loss is None:
+        trial = np.vstack([u[None, :], trial])
+    values = space.values(trial)
+    f = np.asarray(score(values), float)
+    if record is not None:
+        record(values, f)
+    k = int(np.argmin(f))
+    if loss is None or f[k] < loss:
+        u, loss = trial[k].copy(), float(f[k])
+    return u, loss
+
+
 def global_search(
     scorer: PopulationScorer,
     space: SearchSpace,
@@ -563,7 +615,14 @@ def global_search(
     `coordinate_sweep` from its start (recorded with that stage's first generation).
     Only the last stage's candidates, scored on the whole window, are comparable with each other
     and with what the posterior evaluates: they are the result's candidates; the earlier stages
-    are summarised in `stages`. Returns every such candidate and the best one."""
+    are summarised in `stages`. Returns every such candidate and the best one.
+
+    With recon.search.starts = n > 1 the last window runs n CMA-ES searches side by side (one
+    batch): from the previous window's best (swept as above) and from the best of its other
+    regions (`distinct_starts`, recon.search.start_distance apart in the unit box), each with the
+    step the previous window reached; after each of 1 + ceil(log2 n) phases the worse half stops
+    (`halving_phases`). One window's search settles in the basin nearest its start; the whole
+    window's basins are narrow and lie behind valleys (docs/posterior.md, "The SBC's fourth draw")."""
     import cma
 
     d = len(space.names)
@@ -580,20 +639,27 @@ def global_search(
     u0, loss0 = space.unit(start), None
     n0 = int(search_cfg.initial_samples)
     n_line = int(getattr(search_cfg, "line_points", 0))
+    n_contact = int(getattr(search_cfg, "contact_points", 0))
 
     def window(stage: dict) -> int | None:
         return None if stage["frames"] == n_fit else stage["frames"]
 
     def sweep(stage: dict, u: np.ndarray, loss: float | None, generation: int) -> np.ndarray:
-        if n_line <= 0:
+        if n_line <= 0 and n_contact <= 0:
             return u
 
         def record(values: dict, losses: np.ndarray) -> None:
             _record(stage, space, values, losses, generation)
             stage["n_swept"] += losses.size
 
-        u, loss = coordinate_sweep(lambda v: scorer(v, frames=window(stage)), space, u, loss, n_line, record)
-        log.info("dynamics: global search: coordinate sweep on the first %d fit frames, best %.5f", stage["frames"],
+        def score(v: dict) -> np.ndarray:
+            return scorer(v, frames=window(stage))
+
+        if n_line > 0:
+            u, loss = coordinate_sweep(score, space, u, loss, n_line, record)
+        if n_contact > 0:
+            u, loss = contact_grid(score, space, u, loss, n_contact, record)
+        log.info("dynamics: global search: sweeps on the first %d fit frames, best %.5f", stage["frames"],
                  loss)  # fmt: skip
         return u
 
@@ -621,7 +687,9 @@ def global_search(
         "tolx": 1e-6,
     }
     es = cma.CMAEvolutionStrategy(u0.tolist(), float(search_cfg.sigma0), opts)
-    plan = [(stage, g) for stage in stages for g in range(stage["generations"])]
+    n_starts = int(getattr(search_cfg, "starts", 1))
+    multi = n_starts > 1 and len(stages) > 1
+    plan = [(stage, g) for stage in (stages[:-1] if multi else stages) for g in range(stage["generations"])]
     steps = range(len(plan))
     if progress:
         from tqdm import tqdm
@@ -653,6 +721,9 @@ def global_search(
                  f.min())  # fmt: skip
         if progress:
             steps.set_postfix(best=f"{best:.4f}")
+    if multi:
+        _multistart_stage(scorer, space, stages[-2], stages[-1], len(plan), es.sigma, sweep, opts, n_starts,
+                          float(getattr(search_cfg, "start_distance", 0.2)), progress)  # fmt: skip
     last = stages[-1]  # never empty: a stage's first generation always runs, and a later stage starts
     #                    with the previous one's best
     candidates = np.concatenate(last["candidates"])
@@ -679,3 +750,60 @@ def global_search(
         stages=summary,
         n_swept=last["n_swept"],
     )
+
+
+def _multistart_stage(
+    scorer,
+    space,
+    previous: dict,
+    stage: dict,
+    g0: int,
+    sigma: float,
+    sweep,
+    opts: dict,
+    n_starts: int,
+    distance: float,
+    progress: bool = False,
+) -> None:
+    """The last window of `global_search` with recon.search.starts = n_starts > 1: the previous
+    window's best (scored on this window, then swept) and its best distinct regions
+    (`distinct_starts`) scored on this window, then a CMA-ES from each, side by side, the worse half
+    stopping after each phase (`halving_phases`); every candidate recorded in `stage`."""
+    import cma
+
+    best_values, _ = _stage_best(previous, space.names)
+    u_prev = np.stack([space.unit({n: c[k] for k, n in enumerate(space.names)})
+                       for c in np.concatenate(previous["candidates"])])  # fmt: skip
+    starts = distinct_starts(u_prev, np.concatenate(previous["losses"]), space.unit(best_values), n_starts, distance)
+    values = space.values(starts)
+    f0 = scorer(values, frames=None)
+    _record(stage, space, values, f0, g0)
+    u_main = sweep(stage, starts[0], float(f0[0]), g0)
+    starts[0] = u_main
+    step = max(float(sigma), 1e-3)
+    runs = [cma.CMAEvolutionStrategy(u.tolist(), step, {**opts, "seed": int(opts["seed"]) + i, "maxiter": stage["generations"]})
+            for i, u in enumerate(starts)]  # fmt: skip
+    best = [float(v) for v in f0]
+    best[0] = min(best[0], float(np.min(np.concatenate(stage["losses"]))))
+    log.info("dynamics: global search: %d starts on the whole window, losses %s", len(starts),
+             " ".join(f"{v:.5f}" for v in f0))  # fmt: skip
+    active = list(range(len(runs)))
+    g = g0
+    for n_gen, n_keep in halving_phases(stage["generations"], len(runs)):
+        active = sorted(active, key=lambda i: best[i])[:n_keep]
+        for _ in range(n_gen):
+            live = [i for i in active if not runs[i].stop()]
+            if not live:
+                break
+            asked = [np.asarray(runs[i].ask(), float) for i in live]
+            u = np.concatenate(asked)
+            values = space.values(u)
+            f = scorer(values, frames=None)
+            _record(stage, space, values, f, g)
+            for k, i in enumerate(live):
+                fi = f[k * len(asked[k]) : (k + 1) * len(asked[k])]
+                runs[i].tell(list(asked[k]), fi.tolist())
+                best[i] = min(best[i], float(fi.min()))
+            log.info("dynamics: global search generation %d (%d starts): best loss %.5f, per start %s", g, len(live),
+                     min(best), " ".join(f"{best[i]:.5f}" for i in live))  # fmt: skip
+            g += 1

@@ -111,6 +111,9 @@ DESIGN_SEARCH_CHECKS = {
     "line_points": non_negative("0: no coordinate sweep"),
     "frame_schedule": list_of(between(0.0, 1.0, lo_open=True), min_len=1),
     "level": choice("sgdr.identify.global_search:LEVELS"),
+    "starts": at_least(1),
+    "contact_points": non_negative("0: no contact grid"),
+    "start_distance": positive(),
 }
 
 CHECKS: dict[str, Check] = {

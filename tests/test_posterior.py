@@ -559,6 +559,42 @@ def test_tiny_rendered_posterior_converges_on_a_twin(tiny):
 
 
 @slow
+def test_the_contact_landscape_and_the_search_score_a_twins_truth(tiny, tmp_path, capsys):
+    """evaluation.studies.contact_landscape: friction x restitution on a grid at the twin's level and
+    κ, both windows, a heat map beside the JSON; the twin's own images make the truth (its friction
+    and restitution the asset's) score below every grid point. search_twin's `truth_losses` scores
+    the same truth with the same scorer. A run's own sequence is refused."""
+    from evaluation.studies import contact_landscape
+    from evaluation.studies.search_twin import truth_losses
+    from sgdr.posterior.likelihood import RenderedImages
+    from sgdr.posterior.run import design_search_config
+    from sgdr.run_folder import run_asset_and_sequence
+
+    overrides, run_dir, twin = tiny
+    argv = [*overrides, f"posterior.run={run_dir}", f"posterior.sequence={twin}"]
+    out = tmp_path / "contact.json"
+    contact_landscape.main([*argv, "+points=2", f"+out={out}"])
+    got = json.loads(out.read_text())
+    assert np.shape(got["whole"]) == (2, 2) and np.shape(got["first"]) == (2, 2) and got["grid"] == [0.25, 0.75]
+    assert got["truth"]["log10_k_shift"] == pytest.approx(TRUE_SHIFT)
+    assert got["truth_whole"] < np.min(got["whole"]) and got["truth_first"] <= np.min(got["first"]) + 1e-9
+    assert out.with_suffix(".png").stat().st_size > 1000
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["out"] == str(out)
+    cfg = OmegaConf.to_object(compose(argv))
+    _, asset, _, seq = run_asset_and_sequence(run_dir, str(twin), cfg.scene_file, "posterior")
+    sc = design_search_config(cfg)
+    images = RenderedImages(asset, seq, None, cfg.render, cfg.recon.lambda_dssim, sc.image_scale, sc.images_per_call)
+    found = {"best_loss": 1.0, "stages": [{"frames": 2, "best_loss": 1.0}]}
+    scored = truth_losses(cfg, asset, seq, images, found)
+    assert scored["loss"] == pytest.approx(got["truth_whole"], rel=1e-5) and scored["gap"] == 1.0 - scored["loss"]
+    assert scored["stages"][0]["frames"] == 2 and scored["stages"][0]["loss"] < 1.0
+    _, _, _, own = run_asset_and_sequence(run_dir, "", cfg.scene_file, "posterior")
+    assert truth_losses(cfg, asset, own, images, found) == {}
+    with pytest.raises(SystemExit, match="not a twin"):
+        contact_landscape.twin_values(own, asset)
+
+
+@slow
 def test_batched_rollout_retries_samples_past_the_stability_bound(tiny):
     """The batched program does not retry; a sample stiffer than the asset's n_t allows is re-run
     by the loop (doubled substeps), so a stiff sample is not silently cut off the posterior."""

@@ -5,7 +5,7 @@ reach it (docs/posterior.md, "The SBC's misses in friction and restitution").
     python -m evaluation.studies.contact_landscape posterior.run=outputs/torus_small_s0 preset=small threads=1 \\
         posterior.sequence=outputs/sbc_d4s/case_033/twin +points=16 +out=outputs/sbc_d4s/case_033/contact.json
 
-Scores an n x n grid ((i + 1/2) / n of each range) with the search's scorer (the design search's
+Scores an n x n grid ((i + 1/2) / n of [0, 1] each) with the search's scorer (the design search's
 images and scale, `design_search_config`) on the first `+frames` fit frames (default: half the
 window, as the design search's first window) and on the whole window, and the truth itself on both.
 Writes the JSON (`+out`) and a heat map of each window's loss above the truth's beside it (.png);
@@ -64,7 +64,6 @@ def plot(out: dict, path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    g = np.asarray(out["grid"])
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
     for ax, key in zip(axes, ("first", "whole")):
         above = np.asarray(out[key]) - out[f"truth_{key}"]
@@ -74,7 +73,6 @@ def plot(out: dict, path: Path) -> Path:
         ax.set_ylabel("friction")
         ax.set_title(f"{key} window: loss above the truth's (+)")
         fig.colorbar(im, ax=ax)
-    ax.set_xticks(g[:: max(1, g.size // 4)].round(2))
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -555,15 +555,22 @@ def coordinate_sweep(score, space: SearchSpace, u: np.ndarray, loss: float | Non
     for i in range(u.size):
         trial = np.repeat(u[None, :], grid.size, axis=0)
         trial[:, i] = grid
-        if loss is None:
-            trial = np.vstack([u[None, :], trial])
-        values = space.values(trial)
-        f = np.asarray(score(values), float)
-        if record is not None:
-            record(values, f)
-        j = int(np.argmin(f))
-        if loss is None or f[j] < loss:
-            u, loss = trial[j].copy(), float(f[j])
+        u, loss = _best_of(score, space, trial, u, loss, record)
+    return u, loss
+
+
+def _best_of(score, space: SearchSpace, trial: np.ndarray, u: np.ndarray, loss: float | None, record=None):
+    """The unit points `trial` scored in one batch (`u` first when its loss is None; `record` sees
+    the batch): the best of them and its loss where it beats `loss`, else `u` and `loss`."""
+    if loss is None:
+        trial = np.vstack([u[None, :], trial])
+    values = space.values(trial)
+    f = np.asarray(score(values), float)
+    if record is not None:
+        record(values, f)
+    j = int(np.argmin(f))
+    if loss is None or f[j] < loss:
+        return trial[j].copy(), float(f[j])
     return u, loss
 
 
@@ -583,16 +590,7 @@ def contact_grid(score, space: SearchSpace, u: np.ndarray, loss: float | None, n
     trial = np.repeat(u[None, :], g.size * g.size, axis=0)
     trial[:, i] = np.repeat(g, g.size)
     trial[:, j] = np.tile(g, g.size)
-    if loss is None:
-        trial = np.vstack([u[None, :], trial])
-    values = space.values(trial)
-    f = np.asarray(score(values), float)
-    if record is not None:
-        record(values, f)
-    k = int(np.argmin(f))
-    if loss is None or f[k] < loss:
-        u, loss = trial[k].copy(), float(f[k])
-    return u, loss
+    return _best_of(score, space, trial, u, loss, record)
 
 
 def global_search(

@@ -101,10 +101,8 @@ def main(argv: list[str]) -> None:
         level = asset_level(asset)
         t0 = time.time()
         values = grid_values(truth, level, grid)
-        at_truth = {k: v[:1] for k, v in grid_values(truth, level, np.array([0.0])).items()}
-        at_truth["friction"], at_truth["restitution"] = (
-            np.array([float(truth[k])]) for k in ("friction", "restitution")
-        )
+        at_truth = {**grid_values(truth, level, np.zeros(1)), "friction": np.array([truth["friction"]]),
+                    "restitution": np.array([truth["restitution"]])}  # fmt: skip
         out = {
             "truth": truth,
             "grid": grid.tolist(),

@@ -28,9 +28,9 @@ import sgdr.backend
 from evaluation.studies.config import split_extra
 from sgdr.cli import user_errors
 from sgdr.config import compose, validate
-from sgdr.identify.global_search import REGION_START, search_space
+from sgdr.identify.global_search import REGION_START
 from sgdr.posterior.likelihood import RenderedImages
-from sgdr.posterior.run import SEARCHED_AS, asset_level, design_search_config, prior_search_box, search_sequence
+from sgdr.posterior.run import SEARCHED_AS, asset_level, design_search_config, design_search_space, search_sequence
 from sgdr.run_folder import run_asset_and_sequence
 
 
@@ -43,10 +43,7 @@ def truth_losses(cfg, asset, seq, images: RenderedImages, found: dict) -> dict:
     truth = gt.get("truth") or {}
     if not gt.get("twin") or not truth:
         return {}
-    sc = prior_search_box(design_search_config(cfg), cfg.posterior.priors, cfg.posterior.parameters, asset_level(asset))
-    model, _ = asset.build()
-    per_anchor = np.ndim(asset.values["log10_k"]) > 0 and np.size(asset.values["log10_k"]) > 1
-    space = search_space(sc, asset.physics, model, 1.0 / asset.fps, int(asset.n_substeps), per_anchor)
+    _, space = design_search_space(cfg, asset)
     level = asset_level(asset)
     values = {}
     for name in space.names:

@@ -72,10 +72,10 @@ class SearchConfig:
     # each phase (`halving_phases`). The whole window's basins are narrow and lie behind valleys that
     # one local search does not cross (docs/posterior.md, "The SBC's fourth draw"); 1 = one search
     starts: int = 1
+    start_distance: float = 0.2
     # friction and restitution swept together on a contact_points x contact_points grid after each
     # coordinate sweep (`contact_grid`); 0 = none
     contact_points: int = 0
-    start_distance: float = 0.2
     images_per_call: int = 200  # rendered and scored together (sgdr.render.splat.render_batch); 1 = one at a time
     top_k: int = 5  # candidates whose futures the report compares (within equivalent_tolerance of the best)
     equivalent_tolerance: float = 0.05  # relative loss within which candidates count as fitting equally well

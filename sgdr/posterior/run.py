@@ -317,21 +317,30 @@ def cached_search(path: Path, key: str, search) -> dict:
     return found
 
 
+def design_search_space(cfg, asset):
+    """(settings, SearchSpace) of the design search on a sequence other than the run's own: recon.search.*
+    with posterior.surrogate.design_search.* in place (`design_search_config`), over the posterior's
+    prior box (`prior_search_box`) with the asset's model."""
+    from sgdr.identify.global_search import search_space
+
+    sc = prior_search_box(design_search_config(cfg), cfg.posterior.priors, cfg.posterior.parameters, asset_level(asset))
+    model, _ = asset.build()
+    per_anchor = np.ndim(asset.values["log10_k"]) > 0 and np.size(asset.values["log10_k"]) > 1
+    return sc, search_space(sc, asset.physics, model, 1.0 / asset.fps, int(asset.n_substeps), per_anchor)
+
+
 def search_sequence(cfg, asset, seq, images: RenderedImages | None, progress: bool = False) -> dict:
     """The identification's global stage (CMA-ES over its parameters, every candidate's open-loop
     rollout rendered and scored; recon.search.* with posterior.surrogate.design_search.* in place,
     `design_search_config`) on `seq` with the asset's model and appearance: the design's
     candidates for a sequence the run did not see (e.g. a twin); the search record's JSON
     ({"names", "candidates", "losses", ...})."""
-    from sgdr.identify.global_search import REGION_START, global_search, search_space
+    from sgdr.identify.global_search import REGION_START, global_search
 
-    sc = prior_search_box(design_search_config(cfg), cfg.posterior.priors, cfg.posterior.parameters, asset_level(asset))
+    sc, space = design_search_space(cfg, asset)
     if images is None or images.scorer.image_scale != int(sc.image_scale):
         images = RenderedImages(asset, seq, None, cfg.render, cfg.recon.lambda_dssim, sc.image_scale,
                                 sc.images_per_call)  # fmt: skip
-    model, _ = asset.build()
-    per_anchor = np.ndim(asset.values["log10_k"]) > 0 and np.size(asset.values["log10_k"]) > 1
-    space = search_space(sc, asset.physics, model, 1.0 / asset.fps, int(asset.n_substeps), per_anchor)
     # from the asset's own values (the regions from the identification's start), else the box's centre
     centre = dict(zip(space.names, 0.5 * (space.lo + space.hi)))
     init = {n: REGION_START.get(n, float(np.mean(asset.values.get(n, centre[n])))) for n in space.names}
